@@ -1,0 +1,210 @@
+//! camera-reader service: plays a source into the `frames` topic.
+//!
+//! Lockstep: publishes frame n, waits for SLAM's Track(n), then n+1; answers
+//! the supervisor's replay requests (recovery after a restart).
+//! Real-time: publishes at the source's timestamps (times `speed`), never
+//! waits; consumers take the newest frame and the supervisor counts drops.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::Result;
+use camera_reader::decode::png_size;
+use camera_reader::frame::{decode_frame, header_for, mark_bad, FrameGeometry};
+use camera_reader::source::{image_folder, tum_folder, FrameEntry};
+use clap::Parser;
+use pipeline::clock::now_ns;
+use pipeline::config::{ClockMode, SourceKind};
+use pipeline::runtime::{run_service, InputError, ServiceArgs, ServiceContext};
+use pipeline::transport::{attach, wait, waitset, Receiver, Sender, Waiter, Wake};
+use shared_types::names::Topic;
+use shared_types::{frame_flags, Control, FrameHeader, ServiceKind, Track};
+
+#[derive(Debug, Parser)]
+#[command(about = "dynslam camera-reader: plays frames into shared memory")]
+struct Args {
+    #[command(flatten)]
+    service: ServiceArgs,
+    /// First frame to publish (the supervisor resumes interrupted runs here).
+    #[arg(long, default_value_t = 0)]
+    start_seq: u64,
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    run_service(ServiceKind::CameraReader, &args.service, |ctx| {
+        run(ctx, args.start_seq)
+    })
+}
+
+fn load_source(ctx: &ServiceContext) -> Result<(Vec<FrameEntry>, FrameGeometry)> {
+    let src = &ctx.config.source;
+    let folder: PathBuf = src.path.clone();
+    let mut frames = match src.kind {
+        SourceKind::Tum => tum_folder(&folder, src.max_time_diff),
+        SourceKind::Images => image_folder(&folder, src.image_period),
+    }
+    .map_err(|e| InputError(e.to_string()))?;
+    if src.limit > 0 {
+        frames.truncate(src.limit as usize);
+    }
+    // The first frame fixes the sequence's size; it must fit shared memory.
+    let (width, height) = png_size(&frames[0].rgb).map_err(|e| InputError(e.to_string()))?;
+    let run = &ctx.config.run;
+    if width > run.max_width || height > run.max_height {
+        return Err(InputError(format!(
+            "{}: frames are {width}x{height}, larger than run.max_width x run.max_height = {}x{} in {}",
+            frames[0].rgb.display(),
+            run.max_width,
+            run.max_height,
+            "the pipeline config"
+        ))
+        .into());
+    }
+    Ok((
+        frames,
+        FrameGeometry {
+            width,
+            height,
+            depth_scale: src.depth_scale,
+        },
+    ))
+}
+
+struct Player {
+    frames: Vec<FrameEntry>,
+    geometry: FrameGeometry,
+    sender: Sender<[u8], FrameHeader>,
+}
+
+impl Player {
+    /// Decodes frame `seq` straight into a loaned sample and publishes it; a
+    /// frame that cannot be decoded is published as BAD_INPUT with the reason.
+    fn publish(&self, seq: u64, replay: bool) -> Result<()> {
+        let Some(entry) = self.frames.get(seq as usize) else {
+            return self.publish_end();
+        };
+        let capture_ns = now_ns();
+        let mut header = header_for(seq, entry, self.geometry);
+        header.stamps.capture_ns = capture_ns;
+        if replay {
+            header.flags |= frame_flags::REPLAY;
+        }
+        let mut sample = self
+            .sender
+            .loan(self.geometry.payload_len(entry.depth.is_some()))?;
+        if let Err(e) = decode_frame(entry, self.geometry, sample.payload_mut()) {
+            tracing::error!(seq, "bad input frame: {e}");
+            mark_bad(&mut header, &e);
+            sample = self.sender.loan(0)?;
+        }
+        header.stamps.published_ns = now_ns();
+        *sample.user_header_mut() = header;
+        self.sender.publish(sample)?;
+        tracing::debug!(seq, replay, "published frame");
+        Ok(())
+    }
+
+    fn publish_end(&self) -> Result<()> {
+        let mut sample = self.sender.loan(0)?;
+        *sample.user_header_mut() = FrameHeader {
+            seq: self.frames.len() as u64,
+            flags: frame_flags::END_OF_STREAM,
+            ..Default::default()
+        };
+        self.sender.publish(sample)
+    }
+}
+
+fn run(ctx: ServiceContext, start_seq: u64) -> Result<()> {
+    let (frames, geometry) = load_source(&ctx)?;
+    tracing::info!(
+        frames = frames.len(),
+        width = geometry.width,
+        height = geometry.height,
+        "source {} ready",
+        ctx.config.source.path.display()
+    );
+    let player = Player {
+        frames,
+        geometry,
+        sender: ctx
+            .transport
+            .slice_sender::<FrameHeader>(Topic::Frames, ctx.config.max_frame_bytes())?,
+    };
+    let tracks = ctx.transport.receiver::<Track>(Topic::Tracks)?;
+    let control = ctx.transport.receiver::<Control>(Topic::Control)?;
+    let ws = waitset()?;
+    let _tracks_attached = attach(&ws, &tracks)?;
+    let _control_attached = attach(&ws, &control)?;
+    ctx.announce_ready()?;
+
+    match ctx.config.run.mode {
+        ClockMode::Lockstep => lockstep(&player, &ws, &tracks, &control, start_seq),
+        ClockMode::Realtime => realtime(&player, &ws, &control, start_seq, ctx.config.run.speed),
+    }
+}
+
+fn lockstep(
+    player: &Player,
+    ws: &Waiter,
+    tracks: &Receiver<Track, ()>,
+    control: &Receiver<Control, ()>,
+    start_seq: u64,
+) -> Result<()> {
+    let total = player.frames.len() as u64;
+    let mut current = start_seq.min(total);
+    player.publish(current, false)?;
+    loop {
+        if wait(ws, Duration::from_secs(1))? == Wake::Terminate {
+            return Ok(());
+        }
+        for c in control.drain()? {
+            if c.replay_seq == current {
+                tracing::info!(seq = current, "replaying frame after a restart");
+                player.publish(current, true)?;
+            }
+        }
+        let done = tracks.drain()?.iter().any(|t| t.seq == current);
+        if done && current < total {
+            current += 1;
+            player.publish(current, false)?;
+        }
+    }
+}
+
+fn realtime(
+    player: &Player,
+    ws: &Waiter,
+    control: &Receiver<Control, ()>,
+    start_seq: u64,
+    speed: f64,
+) -> Result<()> {
+    let total = player.frames.len() as u64;
+    let t0 = now_ns();
+    let first_ts = player
+        .frames
+        .get(start_seq as usize)
+        .map(|f| f.timestamp)
+        .unwrap_or(0.0);
+    for seq in start_seq..total {
+        let due = t0 + ((player.frames[seq as usize].timestamp - first_ts) / speed * 1e9) as u64;
+        loop {
+            let now = now_ns();
+            if now >= due {
+                break;
+            }
+            if wait(ws, Duration::from_nanos(due - now))? == Wake::Terminate {
+                return Ok(());
+            }
+            control.drain()?; // replays do not apply at camera rate
+        }
+        player.publish(seq, false)?;
+    }
+    player.publish_end()?;
+    while wait(ws, Duration::from_secs(1))? != Wake::Terminate {
+        control.drain()?;
+    }
+    Ok(())
+}

@@ -1,0 +1,302 @@
+//! Frame sources: the ordered list of frames a run plays.
+//!
+//! A TUM RGB-D folder is read as the benchmark's own tools do: `rgb.txt` and
+//! `depth.txt` (`timestamp path` lines, `#` comments), associated by nearest
+//! timestamp within a tolerance (greedy on the smallest differences, each
+//! image used once, like `associate.py`). Any malformed or unsorted line is an
+//! error naming the file and line: a silently skipped line would shift every
+//! later frame against the ground truth.
+
+use std::path::{Path, PathBuf};
+
+/// One frame to play.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameEntry {
+    /// Source timestamp (seconds; TUM time, or index * period for folders).
+    pub timestamp: f64,
+    pub rgb: PathBuf,
+    pub depth: Option<PathBuf>,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum SourceError {
+    #[error("dataset folder {0} does not exist or is not a folder")]
+    MissingFolder(PathBuf),
+    #[error("{path}: cannot read: {message}")]
+    Unreadable { path: PathBuf, message: String },
+    #[error("{path} line {line}: {message}")]
+    BadLine {
+        path: PathBuf,
+        line: usize,
+        message: String,
+    },
+    #[error("{path}: {message}")]
+    Empty { path: PathBuf, message: String },
+}
+
+/// A timestamped file list (`rgb.txt`, `depth.txt`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TimedList {
+    pub entries: Vec<(f64, PathBuf)>,
+}
+
+/// Parses a TUM `timestamp path` list. Paths are relative to `base`.
+pub fn parse_timed_list(
+    text: &str,
+    list_path: &Path,
+    base: &Path,
+) -> Result<TimedList, SourceError> {
+    let mut entries: Vec<(f64, PathBuf)> = Vec::new();
+    let mut previous_line = 0;
+    for (i, raw) in text.lines().enumerate() {
+        let line_no = i + 1;
+        let line = raw.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let bad = |message: String| SourceError::BadLine {
+            path: list_path.to_path_buf(),
+            line: line_no,
+            message,
+        };
+        let mut fields = line.split_whitespace();
+        let (Some(ts), Some(file), None) = (fields.next(), fields.next(), fields.next()) else {
+            return Err(bad(format!(
+                "expected '<timestamp> <file>', found '{line}'"
+            )));
+        };
+        let timestamp: f64 = ts
+            .parse()
+            .ok()
+            .filter(|t: &f64| t.is_finite() && *t >= 0.0)
+            .ok_or_else(|| bad(format!("'{ts}' is not a valid timestamp")))?;
+        if let Some((prev, _)) = entries.last() {
+            if timestamp <= *prev {
+                return Err(bad(format!(
+                    "timestamp {ts} is not after line {previous_line} ({prev}); the list must be sorted by time"
+                )));
+            }
+        }
+        previous_line = line_no;
+        entries.push((timestamp, base.join(file)));
+    }
+    if entries.is_empty() {
+        return Err(SourceError::Empty {
+            path: list_path.to_path_buf(),
+            message: "lists no frames".into(),
+        });
+    }
+    Ok(TimedList { entries })
+}
+
+fn read_list(folder: &Path, name: &str) -> Result<TimedList, SourceError> {
+    let path = folder.join(name);
+    let text = std::fs::read_to_string(&path).map_err(|e| SourceError::Unreadable {
+        path: path.clone(),
+        message: e.to_string(),
+    })?;
+    parse_timed_list(&text, &path, folder)
+}
+
+/// Associates rgb and depth by nearest timestamp within `max_diff` seconds:
+/// candidate pairs sorted by difference, taken greedily, each image once
+/// (the TUM benchmark's `associate.py`). Returns pairs in time order.
+pub fn associate(rgb: &TimedList, depth: &TimedList, max_diff: f64) -> Vec<FrameEntry> {
+    let d = &depth.entries;
+    let mut candidates: Vec<(f64, usize, usize)> = Vec::new();
+    for (i, (t, _)) in rgb.entries.iter().enumerate() {
+        // depth is sorted: start at the first depth stamp >= t - max_diff.
+        let start = d.partition_point(|(td, _)| *td < t - max_diff);
+        for (j, (td, _)) in d.iter().enumerate().skip(start) {
+            let diff = (td - t).abs();
+            if *td > t + max_diff {
+                break;
+            }
+            if diff < max_diff {
+                candidates.push((diff, i, j));
+            }
+        }
+    }
+    candidates.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    let mut rgb_used = vec![false; rgb.entries.len()];
+    let mut depth_used = vec![false; d.len()];
+    let mut pairs = Vec::new();
+    for (_, i, j) in candidates {
+        if !rgb_used[i] && !depth_used[j] {
+            rgb_used[i] = true;
+            depth_used[j] = true;
+            pairs.push((i, j));
+        }
+    }
+    pairs.sort();
+    pairs
+        .into_iter()
+        .map(|(i, j)| FrameEntry {
+            timestamp: rgb.entries[i].0,
+            rgb: rgb.entries[i].1.clone(),
+            depth: Some(d[j].1.clone()),
+        })
+        .collect()
+}
+
+/// Reads a TUM RGB-D folder into its associated frame list.
+pub fn tum_folder(folder: &Path, max_diff: f64) -> Result<Vec<FrameEntry>, SourceError> {
+    if !folder.is_dir() {
+        return Err(SourceError::MissingFolder(folder.to_path_buf()));
+    }
+    let rgb = read_list(folder, "rgb.txt")?;
+    let depth = read_list(folder, "depth.txt")?;
+    let frames = associate(&rgb, &depth, max_diff);
+    if frames.is_empty() {
+        return Err(SourceError::Empty {
+            path: folder.to_path_buf(),
+            message: format!("no rgb/depth pair within {max_diff} s of each other"),
+        });
+    }
+    Ok(frames)
+}
+
+/// A folder of PNG images in file-name order, `period` seconds apart.
+pub fn image_folder(folder: &Path, period: f64) -> Result<Vec<FrameEntry>, SourceError> {
+    if !folder.is_dir() {
+        return Err(SourceError::MissingFolder(folder.to_path_buf()));
+    }
+    let read = std::fs::read_dir(folder).map_err(|e| SourceError::Unreadable {
+        path: folder.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    let mut files: Vec<PathBuf> = read
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")))
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        return Err(SourceError::Empty {
+            path: folder.to_path_buf(),
+            message: "contains no .png images".into(),
+        });
+    }
+    Ok(files
+        .into_iter()
+        .enumerate()
+        .map(|(i, rgb)| FrameEntry {
+            timestamp: i as f64 * period,
+            rgb,
+            depth: None,
+        })
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn list(text: &str) -> Result<TimedList, SourceError> {
+        parse_timed_list(text, Path::new("/d/rgb.txt"), Path::new("/d"))
+    }
+
+    #[test]
+    fn parses_comments_and_relative_paths() {
+        let l =
+            list("# color images\n# timestamp filename\n1.0 rgb/1.png\n\n2.5 rgb/2.png\n").unwrap();
+        assert_eq!(l.entries.len(), 2);
+        assert_eq!(l.entries[1], (2.5, PathBuf::from("/d/rgb/2.png")));
+    }
+
+    #[test]
+    fn malformed_line_names_file_and_line() {
+        let err = list("# c\n1.0 rgb/1.png\nnot-a-line\n").unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "/d/rgb.txt line 3: expected '<timestamp> <file>', found 'not-a-line'"
+        );
+        let err = list("abc rgb/1.png\n").unwrap_err();
+        assert!(
+            err.to_string()
+                .contains("line 1: 'abc' is not a valid timestamp"),
+            "{err}"
+        );
+        let err = list("1.0 a.png extra\n").unwrap_err();
+        assert!(err.to_string().contains("line 1"), "{err}");
+    }
+
+    #[test]
+    fn unsorted_line_names_both_lines() {
+        let err = list("2.0 a.png\n3.0 b.png\n2.5 c.png\n").unwrap_err();
+        let msg = err.to_string();
+        assert!(
+            msg.contains("line 3") && msg.contains("line 2") && msg.contains("sorted"),
+            "{msg}"
+        );
+    }
+
+    #[test]
+    fn empty_list_is_an_error() {
+        assert!(matches!(
+            list("# nothing\n"),
+            Err(SourceError::Empty { .. })
+        ));
+    }
+
+    #[test]
+    fn association_is_greedy_nearest_and_one_to_one() {
+        let rgb = list("1.00 r1\n1.03 r2\n1.07 r3\n2.00 r4\n").unwrap();
+        let depth = list("1.01 d1\n1.02 d2\n1.071 d3\n").unwrap();
+        let pairs = associate(&rgb, &depth, 0.02);
+        let names: Vec<_> = pairs
+            .iter()
+            .map(|p| {
+                (
+                    p.rgb.file_name().unwrap().to_str().unwrap().to_string(),
+                    p.depth
+                        .as_ref()
+                        .unwrap()
+                        .file_name()
+                        .unwrap()
+                        .to_str()
+                        .unwrap()
+                        .to_string(),
+                )
+            })
+            .collect();
+        // r2 (1.03) pairs with d2 (1.02, diff .01) and r1 with d1; r3 with d3; r4 has none.
+        assert_eq!(
+            names,
+            vec![
+                ("r1".into(), "d1".into()),
+                ("r2".into(), "d2".into()),
+                ("r3".into(), "d3".into())
+            ]
+        );
+    }
+
+    #[test]
+    fn shared_tum_sequence_associates_all_300_frames() {
+        let folder = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../../shared/data/tum/rgbd_dataset_freiburg1_rpy_first300");
+        let frames = tum_folder(&folder, 0.02).unwrap();
+        // The dataset's own associations.txt (made by associate.py) has the same pairs.
+        let reference = std::fs::read_to_string(folder.join("associations.txt")).unwrap();
+        let expected: Vec<&str> = reference.lines().filter(|l| !l.starts_with('#')).collect();
+        assert_eq!(frames.len(), expected.len());
+        for (f, line) in frames.iter().zip(&expected) {
+            let fields: Vec<&str> = line.split_whitespace().collect();
+            assert!(f.rgb.ends_with(fields[1]), "{:?} vs {line}", f.rgb);
+            assert!(
+                f.depth.as_ref().unwrap().ends_with(fields[3]),
+                "{:?} vs {line}",
+                f.depth
+            );
+        }
+    }
+
+    #[test]
+    fn missing_folder_is_named() {
+        let err = tum_folder(Path::new("/no/such/folder"), 0.02).unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "dataset folder /no/such/folder does not exist or is not a folder"
+        );
+    }
+}

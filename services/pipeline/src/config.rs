@@ -1,0 +1,352 @@
+//! The pipeline configuration (`configs/pipeline.toml`).
+//!
+//! One file describes a whole run: the source, the clock mode, routing,
+//! restart policy and each service's backend. The supervisor reads it, copies
+//! the resolved file into the run folder and hands that copy to every child,
+//! so all processes of a run (and a resumed run) see the same settings.
+//! Unknown keys are errors that name their path (`services.slam.keyframe_evry`):
+//! a typo must never silently fall back to a default on a robot.
+
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PipelineConfig {
+    #[serde(default)]
+    pub run: RunConfig,
+    #[serde(default)]
+    pub source: SourceConfig,
+    #[serde(default)]
+    pub routing: RoutingConfig,
+    #[serde(default)]
+    pub supervisor: SupervisorConfig,
+    #[serde(default)]
+    pub services: ServicesConfig,
+}
+
+/// How frames are clocked through the pipeline.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum ClockMode {
+    /// Deterministic: the camera-reader waits for each frame's Track result.
+    #[default]
+    Lockstep,
+    /// Camera rate: the newest frame wins, every dropped frame is counted.
+    Realtime,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct RunConfig {
+    pub mode: ClockMode,
+    /// Real-time playback speed factor (2.0 plays twice as fast as recorded).
+    pub speed: f64,
+    /// Where run folders are created (relative to the working directory).
+    pub output_dir: PathBuf,
+    /// Largest frame the shared-memory segments are sized for.
+    pub max_width: u32,
+    pub max_height: u32,
+}
+
+impl Default for RunConfig {
+    fn default() -> Self {
+        Self {
+            mode: ClockMode::Lockstep,
+            speed: 1.0,
+            output_dir: PathBuf::from("runs"),
+            max_width: 640,
+            max_height: 480,
+        }
+    }
+}
+
+/// What the camera-reader plays.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum SourceKind {
+    /// A TUM RGB-D folder (rgb.txt, depth.txt, rgb/, depth/).
+    #[default]
+    Tum,
+    /// A folder of PNG images, played in file-name order, no depth.
+    Images,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct SourceConfig {
+    pub kind: SourceKind,
+    /// Folder to play; empty means "given on the command line".
+    pub path: PathBuf,
+    /// TUM association tolerance between rgb and depth timestamps (seconds).
+    pub max_time_diff: f64,
+    /// Depth value per metre (5000 for TUM).
+    pub depth_scale: f32,
+    /// Play at most this many frames (0: all).
+    pub limit: u64,
+    /// Frame period for image folders without timestamps (seconds).
+    pub image_period: f64,
+}
+
+impl Default for SourceConfig {
+    fn default() -> Self {
+        Self {
+            kind: SourceKind::Tum,
+            path: PathBuf::new(),
+            max_time_diff: 0.02,
+            depth_scale: 5000.0,
+            limit: 0,
+            image_period: 1.0 / 30.0,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct RoutingConfig {
+    /// Send a frame to the segmenter when the newest segmenter masks are more
+    /// than this many frames old, whatever SLAM's keyframe flag says.
+    pub max_segment_age: u64,
+    /// Segment every frame (ablation: no propagation).
+    pub segment_every_frame: bool,
+    /// Run without any masks: every frame is routed Skip (ablation).
+    pub no_masks: bool,
+}
+
+impl Default for RoutingConfig {
+    fn default() -> Self {
+        Self {
+            max_segment_age: 30,
+            segment_every_frame: false,
+            no_masks: false,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct SupervisorConfig {
+    /// First restart delay; doubled after every restart of the same service.
+    pub restart_backoff_initial_ms: u64,
+    pub restart_backoff_max_ms: u64,
+    /// A service that stays up this long gets its backoff reset.
+    pub restart_backoff_reset_s: u64,
+    /// Give up on a service after this many restarts within `restart_window_s`.
+    pub restart_limit: u32,
+    pub restart_window_s: u64,
+    /// How long a (re)started service may take to announce readiness.
+    pub ready_timeout_s: u64,
+    /// Grace period between SIGTERM and SIGKILL at shutdown.
+    pub stop_timeout_ms: u64,
+    /// Period of the child-exit and dead-node checks.
+    pub watch_period_ms: u64,
+}
+
+impl Default for SupervisorConfig {
+    fn default() -> Self {
+        Self {
+            restart_backoff_initial_ms: 100,
+            restart_backoff_max_ms: 5000,
+            restart_backoff_reset_s: 10,
+            restart_limit: 30,
+            restart_window_s: 60,
+            ready_timeout_s: 60,
+            stop_timeout_ms: 3000,
+            watch_period_ms: 20,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct ServicesConfig {
+    #[serde(rename = "camera-reader")]
+    pub camera_reader: ServiceConfig,
+    pub segmenter: ServiceConfig,
+    pub propagator: ServiceConfig,
+    pub slam: ServiceConfig,
+}
+
+/// Settings of one service process. `backend` picks the implementation behind
+/// the service's trait; the remaining keys are that backend's options.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct ServiceConfig {
+    /// Replace the service's program: `["/path/to/bin", "arg", ...]`. The
+    /// supervisor appends the standard service arguments.
+    pub command: Vec<String>,
+    /// Which implementation to run (service specific; empty: the default).
+    pub backend: String,
+    /// Scripted SLAM: request a keyframe every this many frames.
+    pub keyframe_every: u64,
+    /// Scripted backends: simulated work per frame (milliseconds).
+    pub work_ms: u64,
+    /// Scripted SLAM: append every tracked seq to this file (delivery tests).
+    pub seen_log: Option<PathBuf>,
+}
+
+/// A configuration error that names the file, the key path and the problem.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read config file {path}: {source}")]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("config file {path}: {message}")]
+    Invalid { path: PathBuf, message: String },
+}
+
+impl PipelineConfig {
+    /// Reads and validates a configuration file.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Self::parse(&text).map_err(|message| ConfigError::Invalid {
+            path: path.to_path_buf(),
+            message,
+        })
+    }
+
+    /// Parses and validates configuration text; the error names the key path.
+    pub fn parse(text: &str) -> Result<Self, String> {
+        let deserializer = toml::Deserializer::new(text);
+        let config: PipelineConfig =
+            serde_path_to_error::deserialize(deserializer).map_err(|e| {
+                let path = e.path().to_string();
+                let inner = e.into_inner();
+                let msg = inner.message().to_string();
+                let line = inner
+                    .span()
+                    .map(|s| format!(" (line {})", line_of(text, s.start)))
+                    .unwrap_or_default();
+                if path.is_empty() || path == "." {
+                    format!("{msg}{line}")
+                } else {
+                    format!("key `{path}`{line}: {msg}")
+                }
+            })?;
+        config.validate()?;
+        Ok(config)
+    }
+
+    fn validate(&self) -> Result<(), String> {
+        let r = &self.run;
+        if r.max_width == 0 || r.max_height == 0 || r.max_width > 8192 || r.max_height > 8192 {
+            return Err(format!(
+                "key `run.max_width`/`run.max_height`: {}x{} is not a usable frame size (1..=8192)",
+                r.max_width, r.max_height
+            ));
+        }
+        if !(r.speed.is_finite() && r.speed > 0.0) {
+            return Err(format!(
+                "key `run.speed`: {} must be a positive number",
+                r.speed
+            ));
+        }
+        if !(self.source.max_time_diff.is_finite() && self.source.max_time_diff > 0.0) {
+            return Err("key `source.max_time_diff`: must be a positive number of seconds".into());
+        }
+        if !(self.source.depth_scale.is_finite() && self.source.depth_scale > 0.0) {
+            return Err("key `source.depth_scale`: must be a positive number".into());
+        }
+        if !(self.source.image_period.is_finite() && self.source.image_period > 0.0) {
+            return Err("key `source.image_period`: must be a positive number of seconds".into());
+        }
+        let s = &self.supervisor;
+        if s.restart_backoff_initial_ms == 0
+            || s.restart_backoff_max_ms < s.restart_backoff_initial_ms
+        {
+            return Err(
+                "key `supervisor.restart_backoff_max_ms`: must be >= restart_backoff_initial_ms > 0"
+                    .into(),
+            );
+        }
+        if s.watch_period_ms == 0 {
+            return Err("key `supervisor.watch_period_ms`: must be > 0".into());
+        }
+        Ok(())
+    }
+
+    /// Bytes of the largest frame payload (RGB8 + u16 depth).
+    pub fn max_frame_bytes(&self) -> usize {
+        self.run.max_width as usize * self.run.max_height as usize * 5
+    }
+
+    /// Bytes of the largest mask label image.
+    pub fn max_mask_bytes(&self) -> usize {
+        self.run.max_width as usize * self.run.max_height as usize
+    }
+
+    pub fn service(&self, kind: shared_types::ServiceKind) -> &ServiceConfig {
+        use shared_types::ServiceKind as K;
+        match kind {
+            K::CameraReader => &self.services.camera_reader,
+            K::Segmenter => &self.services.segmenter,
+            K::Propagator => &self.services.propagator,
+            K::Slam => &self.services.slam,
+        }
+    }
+
+    pub fn to_toml(&self) -> String {
+        toml::to_string_pretty(self).expect("configuration serialises to TOML")
+    }
+}
+
+fn line_of(text: &str, byte: usize) -> usize {
+    text[..byte.min(text.len())].matches('\n').count() + 1
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn empty_config_gives_defaults() {
+        let c = PipelineConfig::parse("").unwrap();
+        assert_eq!(c.run.mode, ClockMode::Lockstep);
+        assert_eq!(c.run.max_width, 640);
+    }
+
+    #[test]
+    fn unknown_key_is_rejected_with_its_path_and_line() {
+        let err = PipelineConfig::parse(
+            "[run]\nmode = \"realtime\"\n\n[services.slam]\nkeyframe_evry = 3\n",
+        )
+        .unwrap_err();
+        assert!(err.contains("services.slam"), "{err}");
+        assert!(err.contains("keyframe_evry"), "{err}");
+        assert!(err.contains("line 5"), "{err}");
+    }
+
+    #[test]
+    fn wrong_type_and_bad_values_are_rejected() {
+        let err = PipelineConfig::parse("[run]\nmode = 3\n").unwrap_err();
+        assert!(err.contains("run.mode"), "{err}");
+        let err = PipelineConfig::parse("[run]\nspeed = -1.0\n").unwrap_err();
+        assert!(err.contains("run.speed"), "{err}");
+        assert!(PipelineConfig::parse("[run\n").is_err());
+    }
+
+    #[test]
+    fn round_trips_through_toml() {
+        let c =
+            PipelineConfig::parse("[services.slam]\nbackend = \"scripted\"\nkeyframe_every = 4\n")
+                .unwrap();
+        let back = PipelineConfig::parse(&c.to_toml()).unwrap();
+        assert_eq!(c, back);
+    }
+
+    #[test]
+    fn shipped_configs_parse() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_some_and(|e| e == "toml") {
+                PipelineConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
+            }
+        }
+    }
+}

@@ -1,0 +1,17 @@
+//! The plumbing every dynslam service shares.
+//!
+//! - [`config`]: the pipeline configuration (`configs/pipeline.toml`), parsed
+//!   strictly: unknown keys are rejected with their path.
+//! - [`transport`]: iceoryx2 topics (publish-subscribe + event wake-ups) with
+//!   the per-run prefix, and the stale-resource cleanup of a run.
+//! - [`clock`]: CLOCK_MONOTONIC stamps comparable across processes.
+//! - [`runtime`]: what every service binary does at start (logging, exit
+//!   codes the supervisor understands, readiness handshake).
+
+pub mod clock;
+pub mod config;
+pub mod mask_worker;
+pub mod runtime;
+pub mod stats;
+pub mod transport;
+pub mod views;

@@ -1,0 +1,230 @@
+//! The service loop shared by the segmenter and the propagator.
+//!
+//! A mask worker holds the last few frames in place (borrowed samples, no
+//! copies), takes the routes addressed to it, runs its [`MaskModel`] on the
+//! routed frame and publishes a label image plus instances on `masks`. The
+//! propagator also listens to the segmenter's masks: they are its prompts.
+
+use std::collections::VecDeque;
+use std::time::Duration;
+
+use anyhow::Result;
+use iceoryx2::sample::Sample;
+use shared_types::names::Topic;
+use shared_types::{
+    frame_flags, mask_flags, FrameHeader, Instance, MaskSource, MasksHeader, Route, RouteKind,
+    MAX_INSTANCES,
+};
+
+use crate::clock::now_ns;
+use crate::config::ClockMode;
+use crate::runtime::ServiceContext;
+use crate::transport::{attach, wait, waitset, Svc, Wake};
+use crate::views::{FrameView, MasksView};
+
+/// What a mask model is asked to do. Implementations: the instance segmenter
+/// backends and the propagator backends.
+pub trait MaskModel {
+    /// Short name for logs and reports.
+    fn name(&self) -> &str;
+
+    /// Masks for `frame`: write labels (`i + 1` for instance `i`) into the
+    /// zeroed `labels` (`width*height` bytes) and return the instances.
+    fn infer(&mut self, frame: &FrameView, labels: &mut [u8]) -> Result<Vec<Instance>>;
+
+    /// Segmenter masks for `frame` (a keyframe): new prompts. Only the
+    /// propagator uses them; `frame` is `None` when it no longer holds it.
+    fn prompt(&mut self, _frame: Option<&FrameView>, _masks: &MasksView) {}
+}
+
+/// Frames a worker keeps borrowed (bounded by the frames topic's QoS).
+const HELD_FRAMES: usize = 3;
+
+type FrameSample = Sample<Svc, [u8], FrameHeader>;
+
+/// Runs a mask worker until SIGTERM.
+pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>) -> Result<()> {
+    let my_route = match role {
+        MaskSource::Segmenter => RouteKind::Segment,
+        _ => RouteKind::Propagate,
+    };
+    let frames = ctx.transport.slice_receiver::<FrameHeader>(Topic::Frames)?;
+    let routes = ctx.transport.receiver::<Route>(Topic::Routes)?;
+    let prompts = ctx.transport.slice_receiver::<MasksHeader>(Topic::Masks)?;
+    let masks_out = ctx
+        .transport
+        .slice_sender::<MasksHeader>(Topic::Masks, ctx.config.max_mask_bytes())?;
+    let ws = waitset()?;
+    let _a = attach(&ws, &frames)?;
+    let _b = attach(&ws, &routes)?;
+    let _c = if role == MaskSource::Propagator {
+        Some(attach(&ws, &prompts)?)
+    } else {
+        None
+    };
+    ctx.announce_ready()?;
+    tracing::info!("{} ready with model '{}'", role.as_str(), model.name());
+
+    let realtime = ctx.config.run.mode == ClockMode::Realtime;
+    let mut held: VecDeque<FrameSample> = VecDeque::new();
+    let mut pending: VecDeque<Route> = VecDeque::new();
+    loop {
+        if wait(&ws, Duration::from_secs(1))? == Wake::Terminate {
+            return Ok(());
+        }
+        frames.clear_wakeups();
+        while let Some(sample) = frames.next_sample()? {
+            let h = sample.user_header();
+            if h.has(frame_flags::BAD_INPUT) || h.has(frame_flags::END_OF_STREAM) {
+                continue;
+            }
+            held.retain(|s| s.user_header().seq != h.seq);
+            held.push_back(sample);
+            while held.len() > HELD_FRAMES {
+                held.pop_front();
+            }
+        }
+        if role == MaskSource::Propagator {
+            prompts.clear_wakeups();
+            while let Some(sample) = prompts.next_sample()? {
+                let masks = MasksView::new(sample.user_header(), sample.payload())?;
+                if masks.source() != MaskSource::Segmenter {
+                    continue;
+                }
+                let frame = held
+                    .iter()
+                    .find(|s| s.user_header().seq == masks.header.seq)
+                    .and_then(|s| FrameView::new(s.user_header(), s.payload()).ok());
+                model.prompt(frame.as_ref(), &masks);
+            }
+        }
+        for r in routes.drain()? {
+            tracing::debug!(seq = r.seq, kind = r.kind, held = held.len(), "route");
+            if RouteKind::from_u32(r.kind) == Some(my_route) {
+                pending.retain(|p| p.seq != r.seq);
+                pending.push_back(r);
+            }
+        }
+        if realtime && pending.len() > 1 {
+            // At camera rate only the newest routed frame is worth the work;
+            // the supervisor reports the others as dropped.
+            let newest = pending.pop_back();
+            pending.clear();
+            pending.extend(newest);
+        }
+        while let Some(route) = pending.front().copied() {
+            let Some(sample) = held.iter().find(|s| s.user_header().seq == route.seq) else {
+                let oldest = held.front().map(|s| s.user_header().seq);
+                if oldest.is_some_and(|o| o > route.seq) {
+                    tracing::warn!(seq = route.seq, "routed frame no longer held; skipping");
+                    pending.pop_front();
+                    continue;
+                }
+                break; // the frame has not arrived yet
+            };
+            pending.pop_front();
+            tracing::debug!(seq = route.seq, "making masks");
+            publish_masks(&masks_out, &mut *model, role, &route, sample)?;
+        }
+    }
+}
+
+fn publish_masks(
+    out: &crate::transport::Sender<[u8], MasksHeader>,
+    model: &mut dyn MaskModel,
+    role: MaskSource,
+    route: &Route,
+    sample: &FrameSample,
+) -> Result<()> {
+    let start_ns = now_ns();
+    let fh = sample.user_header();
+    let mut header = MasksHeader {
+        seq: route.seq,
+        source: role as u32,
+        width: fh.width,
+        height: fh.height,
+        ..Default::default()
+    };
+    header.stamps = route.stamps;
+    header.stamps.masks_start_ns = start_ns;
+    let mut out_sample = out.loan(fh.width as usize * fh.height as usize)?;
+    let result = FrameView::new(fh, sample.payload())
+        .and_then(|frame| model.infer(&frame, out_sample.payload_mut()));
+    match result {
+        Ok(instances) => {
+            let n = instances.len().min(MAX_INSTANCES);
+            if instances.len() > MAX_INSTANCES {
+                tracing::warn!(
+                    seq = route.seq,
+                    found = instances.len(),
+                    "keeping the first {MAX_INSTANCES} instances"
+                );
+            }
+            header.instances[..n].copy_from_slice(&instances[..n]);
+            header.num_instances = n as u32;
+        }
+        Err(e) => {
+            // The frame goes on unmasked rather than stalling the pipeline.
+            tracing::error!(seq = route.seq, "{} failed: {e:#}", model.name());
+            out_sample.payload_mut().fill(0);
+            header.flags |= mask_flags::FAILED;
+        }
+    }
+    let done = now_ns();
+    header.inference_ns = done - start_ns;
+    header.stamps.masks_done_ns = done;
+    *out_sample.user_header_mut() = header;
+    out.publish(out_sample)
+}
+
+/// A model that finds no objects: every frame gets an empty label image,
+/// after `work` of simulated compute. It is the `none` backend, for runs where
+/// masks are not wanted from a worker and for plumbing and fault tests; it is
+/// not a segmentation model.
+pub struct NoObjects {
+    pub work: Duration,
+}
+
+impl MaskModel for NoObjects {
+    fn name(&self) -> &str {
+        "none"
+    }
+    fn infer(&mut self, _frame: &FrameView, _labels: &mut [u8]) -> Result<Vec<Instance>> {
+        if !self.work.is_zero() {
+            std::thread::sleep(self.work);
+        }
+        Ok(Vec::new())
+    }
+}
+
+/// Builds the model a worker's configuration names; unknown names are input
+/// errors that list the known ones.
+pub fn model_from_config(
+    ctx: &ServiceContext,
+    known: &[(&str, &dyn Fn(&ServiceContext) -> Result<Box<dyn MaskModel>>)],
+) -> Result<Box<dyn MaskModel>> {
+    let section = ctx.kind.as_str();
+    let cfg = ctx.config.service(ctx.kind);
+    let wanted = if cfg.backend.is_empty() {
+        "none"
+    } else {
+        cfg.backend.as_str()
+    };
+    if wanted == "none" {
+        return Ok(Box::new(NoObjects {
+            work: Duration::from_millis(cfg.work_ms),
+        }));
+    }
+    for (name, make) in known {
+        if *name == wanted {
+            return make(ctx);
+        }
+    }
+    let mut names: Vec<&str> = known.iter().map(|(n, _)| *n).collect();
+    names.push("none");
+    Err(crate::runtime::InputError(format!(
+        "key `services.{section}.backend`: unknown backend '{wanted}' (known: {})",
+        names.join(", ")
+    ))
+    .into())
+}

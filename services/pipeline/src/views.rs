@@ -1,0 +1,92 @@
+//! Borrowed, typed views of samples read in place from shared memory.
+//! A view never copies pixels; it checks lengths once so that the rest of a
+//! service can index without surprises.
+
+use anyhow::{bail, Result};
+use shared_types::{frame_flags, read_error_text, FrameHeader, MaskSource, MasksHeader};
+
+/// One frame read in place.
+#[derive(Clone, Copy)]
+pub struct FrameView<'a> {
+    pub header: &'a FrameHeader,
+    /// RGB8, row-major, `width*height*3` bytes.
+    pub rgb: &'a [u8],
+    /// Native-endian u16 depth bytes, `width*height*2`, when present.
+    pub depth: Option<&'a [u8]>,
+}
+
+impl<'a> FrameView<'a> {
+    /// Checks that the payload holds what the header announces.
+    pub fn new(header: &'a FrameHeader, payload: &'a [u8]) -> Result<Self> {
+        if header.has(frame_flags::BAD_INPUT) || header.has(frame_flags::END_OF_STREAM) {
+            bail!(
+                "frame {} carries no pixels (flags {:#x}): {}",
+                header.seq,
+                header.flags,
+                read_error_text(&header.error)
+            );
+        }
+        let (rgb_len, depth_len) = (header.rgb_len(), header.depth_len());
+        if payload.len() < rgb_len + depth_len || rgb_len == 0 {
+            bail!(
+                "frame {}: payload has {} bytes, header announces {}x{} (+depth {}) = {} bytes",
+                header.seq,
+                payload.len(),
+                header.width,
+                header.height,
+                header.has_depth != 0,
+                rgb_len + depth_len
+            );
+        }
+        Ok(Self {
+            header,
+            rgb: &payload[..rgb_len],
+            depth: (depth_len > 0).then(|| &payload[rgb_len..rgb_len + depth_len]),
+        })
+    }
+
+    pub fn width(&self) -> usize {
+        self.header.width as usize
+    }
+    pub fn height(&self) -> usize {
+        self.header.height as usize
+    }
+
+    /// Depth value at a pixel (raw units; divide by `depth_scale` for metres).
+    pub fn depth_at(&self, x: usize, y: usize) -> Option<u16> {
+        let d = self.depth?;
+        let i = (y * self.width() + x) * 2;
+        Some(u16::from_ne_bytes([d[i], d[i + 1]]))
+    }
+}
+
+/// One set of masks read in place.
+#[derive(Clone, Copy)]
+pub struct MasksView<'a> {
+    pub header: &'a MasksHeader,
+    /// Label image, `width*height` bytes: 0 background, `i+1` instance `i`.
+    pub labels: &'a [u8],
+}
+
+impl<'a> MasksView<'a> {
+    pub fn new(header: &'a MasksHeader, payload: &'a [u8]) -> Result<Self> {
+        let len = header.width as usize * header.height as usize;
+        if payload.len() < len {
+            bail!(
+                "masks {}: payload has {} bytes, header announces {}x{}",
+                header.seq,
+                payload.len(),
+                header.width,
+                header.height
+            );
+        }
+        Ok(Self {
+            header,
+            labels: &payload[..len],
+        })
+    }
+
+    pub fn source(&self) -> MaskSource {
+        MaskSource::from_u32(self.header.source).unwrap_or(MaskSource::None)
+    }
+}

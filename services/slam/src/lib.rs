@@ -1,0 +1,6 @@
+//! The SLAM library. It is usable without any IPC: feed it frames and masks,
+//! get poses. The SLAM service (`main.rs`) is a thin shell around a
+//! [`tracker::Tracker`].
+
+pub mod scripted;
+pub mod tracker;

@@ -1,0 +1,232 @@
+//! SLAM service: frames + masks in, Track out.
+//!
+//! A frame is tracked once its route is known and, unless the route is
+//! Skip, its masks have arrived. Lockstep tracks frames in order; real-time
+//! tracks the newest ready frame and leaves older ones (the supervisor counts
+//! them as dropped). A frame seen again (a replay after some other service
+//! restarted) is not tracked twice: its Track is published again.
+
+use std::collections::{HashMap, VecDeque};
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::Result;
+use clap::Parser;
+use iceoryx2::sample::Sample;
+use pipeline::clock::now_ns;
+use pipeline::config::ClockMode;
+use pipeline::runtime::{run_service, InputError, ServiceArgs, ServiceContext};
+use pipeline::transport::{attach, qos, wait, waitset, Svc, Wake};
+use pipeline::views::{FrameView, MasksView};
+use shared_types::names::Topic;
+use shared_types::{
+    frame_flags, mask_flags, FrameHeader, MasksHeader, Route, RouteKind, ServiceKind, Track,
+    TrackState,
+};
+use slam::scripted::ScriptedTracker;
+use slam::tracker::{TrackInput, Tracker};
+
+#[derive(Debug, Parser)]
+#[command(about = "dynslam slam: tracks frames with dynamic-object masks")]
+struct Args {
+    #[command(flatten)]
+    service: ServiceArgs,
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    run_service(ServiceKind::Slam, &args.service, run)
+}
+
+fn tracker_from_config(ctx: &ServiceContext) -> Result<Box<dyn Tracker>> {
+    let cfg = &ctx.config.services.slam;
+    match cfg.backend.as_str() {
+        "" | "scripted" => Ok(Box::new(ScriptedTracker::new(
+            if cfg.keyframe_every == 0 {
+                5
+            } else {
+                cfg.keyframe_every
+            },
+            Duration::from_millis(cfg.work_ms),
+            cfg.seen_log.clone(),
+        ))),
+        other => Err(InputError(format!(
+            "key `services.slam.backend`: unknown backend '{other}' (known: scripted)"
+        ))
+        .into()),
+    }
+}
+
+type FrameSample = Sample<Svc, [u8], FrameHeader>;
+type MasksSample = Sample<Svc, [u8], MasksHeader>;
+
+struct HeldFrame {
+    sample: FrameSample,
+    received_ns: u64,
+}
+
+/// What the service remembers between wake-ups.
+struct State {
+    frames: VecDeque<HeldFrame>,
+    masks: VecDeque<MasksSample>,
+    routes: HashMap<u64, Route>,
+    last: Option<Track>,
+}
+
+fn run(ctx: ServiceContext) -> Result<()> {
+    let mut tracker = tracker_from_config(&ctx)?;
+    let frames = ctx.transport.slice_receiver::<FrameHeader>(Topic::Frames)?;
+    let masks = ctx.transport.slice_receiver::<MasksHeader>(Topic::Masks)?;
+    let routes = ctx.transport.receiver::<Route>(Topic::Routes)?;
+    let tracks = ctx.transport.sender::<Track>(Topic::Tracks)?;
+    let ws = waitset()?;
+    let _a = attach(&ws, &frames)?;
+    let _b = attach(&ws, &masks)?;
+    let _c = attach(&ws, &routes)?;
+    ctx.announce_ready()?;
+    tracing::info!("slam ready with tracker '{}'", tracker.name());
+
+    let realtime = ctx.config.run.mode == ClockMode::Realtime;
+    let max_frames = qos(Topic::Frames).borrowed - 1;
+    let max_masks = qos(Topic::Masks).borrowed - 1;
+    let mut st = State {
+        frames: VecDeque::new(),
+        masks: VecDeque::new(),
+        routes: HashMap::new(),
+        last: None,
+    };
+    loop {
+        if wait(&ws, Duration::from_secs(1))? == Wake::Terminate {
+            return Ok(());
+        }
+        frames.clear_wakeups();
+        while frames.has_samples()? {
+            if st.frames.len() >= max_frames {
+                st.frames.pop_front();
+            }
+            let Some(sample) = frames.next_sample()? else {
+                break;
+            };
+            let h = *sample.user_header();
+            if h.has(frame_flags::END_OF_STREAM) {
+                continue;
+            }
+            if let Some(last) = st.last.filter(|l| h.seq <= l.seq) {
+                if h.seq == last.seq {
+                    tracks.send(last)?; // replayed frame: answer again
+                }
+                continue;
+            }
+            if h.has(frame_flags::BAD_INPUT) {
+                let t = skipped_track(&h);
+                tracks.send(t)?;
+                st.last = Some(t);
+                continue;
+            }
+            st.frames.retain(|f| f.sample.user_header().seq != h.seq);
+            st.frames.push_back(HeldFrame {
+                sample,
+                received_ns: now_ns(),
+            });
+        }
+        masks.clear_wakeups();
+        while masks.has_samples()? {
+            if st.masks.len() >= max_masks {
+                st.masks.pop_front();
+            }
+            let Some(sample) = masks.next_sample()? else {
+                break;
+            };
+            let seq = sample.user_header().seq;
+            st.masks.retain(|m| m.user_header().seq != seq);
+            st.masks.push_back(sample);
+        }
+        for r in routes.drain()? {
+            st.routes.insert(r.seq, r);
+        }
+
+        while let Some(track) = track_next_ready(&mut st, &mut *tracker, realtime)? {
+            tracks.send(track)?;
+        }
+    }
+}
+
+/// Tracks one ready frame (oldest first in lockstep, newest in real-time).
+fn track_next_ready(
+    st: &mut State,
+    tracker: &mut dyn Tracker,
+    realtime: bool,
+) -> Result<Option<Track>> {
+    let ready = |f: &HeldFrame| {
+        let seq = f.sample.user_header().seq;
+        match st
+            .routes
+            .get(&seq)
+            .and_then(|r| RouteKind::from_u32(r.kind))
+        {
+            Some(RouteKind::Skip) => true,
+            Some(_) => st.masks.iter().any(|m| m.user_header().seq == seq),
+            None => false,
+        }
+    };
+    let index = if realtime {
+        st.frames.iter().rposition(ready)
+    } else {
+        st.frames.iter().position(ready)
+    };
+    let Some(index) = index else { return Ok(None) };
+    let held = &st.frames[index];
+    let header = held.sample.user_header();
+    let seq = header.seq;
+    let route = st.routes[&seq];
+    let masks_sample = st.masks.iter().find(|m| m.user_header().seq == seq);
+
+    let mut stamps = route.stamps;
+    let masks_view = match masks_sample {
+        Some(m) if RouteKind::from_u32(route.kind) != Some(RouteKind::Skip) => {
+            stamps = m.user_header().stamps;
+            let failed = m.user_header().flags & mask_flags::FAILED != 0;
+            (!failed)
+                .then(|| MasksView::new(m.user_header(), m.payload()))
+                .transpose()?
+        }
+        _ => None,
+    };
+    stamps.slam_received_ns = held.received_ns;
+    stamps.track_start_ns = now_ns();
+    let frame = FrameView::new(header, held.sample.payload())?;
+    let outcome = tracker.track(&TrackInput {
+        seq,
+        frame: &frame,
+        masks: masks_view.as_ref(),
+    });
+    stamps.track_done_ns = now_ns();
+    let track = Track {
+        seq,
+        source_timestamp: header.source_timestamp,
+        pose: outcome.pose,
+        state: outcome.state as u32,
+        keyframe_inserted: outcome.keyframe_inserted as u32,
+        next_needs_keyframe: outcome.next_needs_keyframe as u32,
+        mask_source: masks_view.map(|m| m.source() as u32).unwrap_or(0),
+        counts: outcome.counts,
+        stamps,
+    };
+    st.last = Some(track);
+    st.frames.retain(|f| f.sample.user_header().seq > seq);
+    st.masks.retain(|m| m.user_header().seq > seq);
+    st.routes.retain(|&s, _| s > seq);
+    Ok(Some(track))
+}
+
+fn skipped_track(h: &FrameHeader) -> Track {
+    let mut stamps = h.stamps;
+    stamps.track_done_ns = now_ns();
+    Track {
+        seq: h.seq,
+        source_timestamp: h.source_timestamp,
+        state: TrackState::Skipped as u32,
+        stamps,
+        ..Default::default()
+    }
+}

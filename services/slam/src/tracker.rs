@@ -1,0 +1,37 @@
+//! The seam between the SLAM service and a SLAM implementation.
+
+use pipeline::views::{FrameView, MasksView};
+use shared_types::{MaskSource, TrackCounts, TrackState};
+
+/// Everything a tracker gets for one frame.
+pub struct TrackInput<'a> {
+    pub seq: u64,
+    pub frame: &'a FrameView<'a>,
+    /// Dynamic-object masks, when the frame was routed to a mask worker and
+    /// the worker succeeded.
+    pub masks: Option<&'a MasksView<'a>>,
+}
+
+impl TrackInput<'_> {
+    pub fn mask_source(&self) -> MaskSource {
+        self.masks.map(|m| m.source()).unwrap_or(MaskSource::None)
+    }
+}
+
+/// A tracker's answer for one frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrackOutcome {
+    /// World-from-camera pose: tx ty tz qx qy qz qw.
+    pub pose: [f64; 7],
+    pub state: TrackState,
+    pub keyframe_inserted: bool,
+    /// The next frame should be a keyframe (drives the supervisor's routing).
+    pub next_needs_keyframe: bool,
+    pub counts: TrackCounts,
+}
+
+/// A SLAM implementation as the service sees it.
+pub trait Tracker {
+    fn name(&self) -> &str;
+    fn track(&mut self, input: &TrackInput) -> TrackOutcome;
+}

@@ -1,0 +1,226 @@
+//! Child processes: spawning, exit classification and the restart policy.
+
+use std::collections::VecDeque;
+use std::os::unix::process::{CommandExt, ExitStatusExt};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use pipeline::config::{PipelineConfig, SupervisorConfig};
+use pipeline::runtime::exit_code;
+use shared_types::ServiceKind;
+
+/// Exponential backoff with a restart limit in a sliding window.
+#[derive(Debug, Clone)]
+pub struct RestartPolicy {
+    initial: Duration,
+    max: Duration,
+    reset_after: Duration,
+    limit: usize,
+    window: Duration,
+    next_delay: Duration,
+    recent: VecDeque<Instant>,
+}
+
+/// What to do after a service died.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RestartDecision {
+    RestartAfter(Duration),
+    GiveUp { restarts_in_window: usize },
+}
+
+impl RestartPolicy {
+    pub fn new(cfg: &SupervisorConfig) -> Self {
+        Self {
+            initial: Duration::from_millis(cfg.restart_backoff_initial_ms),
+            max: Duration::from_millis(cfg.restart_backoff_max_ms),
+            reset_after: Duration::from_secs(cfg.restart_backoff_reset_s),
+            limit: cfg.restart_limit as usize,
+            window: Duration::from_secs(cfg.restart_window_s),
+            next_delay: Duration::from_millis(cfg.restart_backoff_initial_ms),
+            recent: VecDeque::new(),
+        }
+    }
+
+    /// A service that was up for `uptime` died at `now`.
+    pub fn on_death(&mut self, now: Instant, uptime: Duration) -> RestartDecision {
+        if uptime >= self.reset_after {
+            self.next_delay = self.initial;
+        }
+        while self
+            .recent
+            .front()
+            .is_some_and(|t| now.duration_since(*t) > self.window)
+        {
+            self.recent.pop_front();
+        }
+        if self.recent.len() >= self.limit {
+            return RestartDecision::GiveUp {
+                restarts_in_window: self.recent.len(),
+            };
+        }
+        self.recent.push_back(now);
+        let delay = self.next_delay;
+        self.next_delay = (self.next_delay * 2).min(self.max);
+        RestartDecision::RestartAfter(delay)
+    }
+}
+
+/// How a child ended, in words for logs and reports.
+pub fn describe_exit(status: ExitStatus) -> String {
+    match (status.code(), status.signal()) {
+        (Some(c), _) => format!("exit code {c}"),
+        (None, Some(s)) => format!("signal {s} ({})", signal_name(s)),
+        _ => "unknown status".into(),
+    }
+}
+
+fn signal_name(s: i32) -> &'static str {
+    match s {
+        libc::SIGKILL => "SIGKILL",
+        libc::SIGTERM => "SIGTERM",
+        libc::SIGINT => "SIGINT",
+        libc::SIGSEGV => "SIGSEGV",
+        libc::SIGABRT => "SIGABRT",
+        _ => "signal",
+    }
+}
+
+/// True when the child said its input cannot work (restarting cannot help).
+pub fn is_input_error(status: ExitStatus) -> bool {
+    status.code() == Some(exit_code::INPUT as i32)
+}
+
+/// The program (and leading arguments) of a service: the configured
+/// `command`, or the binary of that name next to the running `dynslam`.
+pub fn service_program(config: &PipelineConfig, kind: ServiceKind) -> Result<Vec<String>> {
+    let cmd = &config.service(kind).command;
+    if !cmd.is_empty() {
+        return Ok(cmd.clone());
+    }
+    let exe = std::env::current_exe().context("cannot locate the running dynslam executable")?;
+    let dir = exe.parent().map(Path::to_path_buf).unwrap_or_default();
+    let bin: PathBuf = dir.join(kind.as_str());
+    if !bin.is_file() {
+        bail!(
+            "service binary {} not found (build all services: cargo build --release --workspace)",
+            bin.display()
+        );
+    }
+    Ok(vec![bin.to_string_lossy().into_owned()])
+}
+
+/// Starts a service process. It gets its own process group (a Ctrl-C in the
+/// terminal reaches only the supervisor, which then stops the services in
+/// order) and SIGTERM when the supervisor dies, so no orphan outlives it.
+/// Its stderr is piped: the supervisor forwards it and remembers the last
+/// error line, to quote it when it gives up on the service.
+pub fn spawn(program: &[String], extra_args: &[String]) -> Result<Child> {
+    let (bin, leading) = program.split_first().context("empty service command")?;
+    let parent = std::process::id() as libc::pid_t;
+    let mut cmd = Command::new(bin);
+    cmd.args(leading)
+        .args(extra_args)
+        .stdin(Stdio::null())
+        .stderr(Stdio::piped());
+    // SAFETY: the closure only calls async-signal-safe libc functions.
+    unsafe {
+        cmd.pre_exec(move || {
+            libc::setpgid(0, 0);
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            // The supervisor may have died between fork and prctl.
+            if libc::getppid() != parent {
+                libc::_exit(1);
+            }
+            Ok(())
+        });
+    }
+    cmd.spawn().with_context(|| format!("cannot start {bin}"))
+}
+
+/// Sends a signal to a process; a process that is already gone is fine.
+pub fn signal(pid: u32, sig: i32) {
+    // SAFETY: kill(2) with a pid we started (or read from our own status file
+    // and verified) has no memory effects.
+    unsafe {
+        libc::kill(pid as libc::pid_t, sig);
+    }
+}
+
+/// True while `pid` exists and its command line mentions `needle` (guards
+/// against signalling a recycled pid).
+pub fn process_matches(pid: u32, needle: &str) -> bool {
+    std::fs::read(format!("/proc/{pid}/cmdline"))
+        .map(|c| String::from_utf8_lossy(&c).contains(needle))
+        .unwrap_or(false)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn policy() -> RestartPolicy {
+        RestartPolicy::new(&SupervisorConfig {
+            restart_backoff_initial_ms: 100,
+            restart_backoff_max_ms: 500,
+            restart_backoff_reset_s: 10,
+            restart_limit: 4,
+            restart_window_s: 60,
+            ..Default::default()
+        })
+    }
+
+    #[test]
+    fn backoff_doubles_up_to_the_cap() {
+        let mut p = policy();
+        let t = Instant::now();
+        let delays: Vec<_> = (0..4)
+            .map(|i| p.on_death(t + Duration::from_millis(i), Duration::from_millis(5)))
+            .collect();
+        let ms = |d: u64| RestartDecision::RestartAfter(Duration::from_millis(d));
+        assert_eq!(delays, vec![ms(100), ms(200), ms(400), ms(500)]);
+    }
+
+    #[test]
+    fn gives_up_after_the_limit_within_the_window_and_recovers_later() {
+        let mut p = policy();
+        let t = Instant::now();
+        for i in 0..4 {
+            assert!(matches!(
+                p.on_death(t + Duration::from_secs(i), Duration::ZERO),
+                RestartDecision::RestartAfter(_)
+            ));
+        }
+        assert_eq!(
+            p.on_death(t + Duration::from_secs(5), Duration::ZERO),
+            RestartDecision::GiveUp {
+                restarts_in_window: 4
+            }
+        );
+        // Long after, the window is empty again and a long uptime resets the backoff.
+        assert_eq!(
+            p.on_death(t + Duration::from_secs(200), Duration::from_secs(100)),
+            RestartDecision::RestartAfter(Duration::from_millis(100))
+        );
+    }
+
+    #[test]
+    fn exits_are_described() {
+        let killed = ExitStatus::from_raw(libc::SIGKILL);
+        assert_eq!(describe_exit(killed), "signal 9 (SIGKILL)");
+        let input = ExitStatus::from_raw(2 << 8);
+        assert!(is_input_error(input));
+        assert_eq!(describe_exit(input), "exit code 2");
+    }
+
+    #[test]
+    fn spawned_child_gets_its_own_group_and_dies_with_us_by_signal() {
+        let mut child = spawn(&["/bin/sh".into(), "-c".into(), "exit 7".into()], &[]).unwrap();
+        let status = child.wait().unwrap();
+        assert_eq!(status.code(), Some(7));
+        assert!(spawn(&["/no/such/binary".into()], &[]).is_err());
+    }
+}

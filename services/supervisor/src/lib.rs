@@ -1,0 +1,10 @@
+//! The supervisor: launches, watches and restarts the services, routes each
+//! frame by SLAM's keyframe flag, records every frame's fate and reports
+//! per-stage latency. The `dynslam` binary is its command line.
+
+pub mod children;
+pub mod latency;
+pub mod outputs;
+pub mod routing;
+pub mod run;
+pub mod run_dir;

@@ -1,0 +1,741 @@
+//! The supervisor's run loop: start the services, route every frame, record
+//! every Track, restart what dies, stop everything in order, write outputs.
+
+use std::collections::{BTreeMap, HashMap};
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::Child;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::{anyhow, bail, Result};
+use pipeline::clock::now_ns;
+use pipeline::config::{ClockMode, PipelineConfig};
+use pipeline::transport::{
+    attach, cleanup_dead_nodes, remove_run_files, run_files, wait, waitset, Transport, Wake,
+};
+use shared_types::names::{RunNames, Topic};
+use shared_types::{
+    frame_flags, read_error_text, Control, FrameHeader, Lifecycle, MaskSource, Route, RouteKind,
+    ServiceKind, Track, TrackState,
+};
+
+use crate::children::{
+    describe_exit, is_input_error, process_matches, service_program, signal, spawn,
+    RestartDecision, RestartPolicy,
+};
+use crate::latency;
+use crate::outputs::{write_tum, FrameLog, FrameRow};
+use crate::routing::{Availability, Router};
+use crate::run_dir::{self, ChildStatus, Status};
+
+/// How a run ended.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunSummary {
+    pub run_dir: PathBuf,
+    pub frames: u64,
+    pub tracked: u64,
+    pub restarts: u64,
+    pub interrupted: bool,
+    pub latency_table: String,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+enum SvcState {
+    NotStarted,
+    Starting { since: Instant },
+    Ready,
+    Backoff { until: Instant },
+    Failed { reason: String },
+    Stopped,
+}
+
+struct Service {
+    kind: ServiceKind,
+    program: Vec<String>,
+    child: Option<Child>,
+    state: SvcState,
+    policy: RestartPolicy,
+    started: Instant,
+    restarts: u64,
+    /// Last error line the service printed (shown when it is given up on).
+    last_error: Arc<Mutex<String>>,
+}
+
+impl Service {
+    fn pid(&self) -> Option<u32> {
+        self.child.as_ref().map(|c| c.id())
+    }
+    fn state_name(&self) -> &'static str {
+        match self.state {
+            SvcState::NotStarted => "not_started",
+            SvcState::Starting { .. } => "starting",
+            SvcState::Ready => "ready",
+            SvcState::Backoff { .. } => "backoff",
+            SvcState::Failed { .. } => "failed",
+            SvcState::Stopped => "stopped",
+        }
+    }
+    fn failed(&self) -> bool {
+        matches!(self.state, SvcState::Failed { .. })
+    }
+}
+
+/// A frame the supervisor has seen but whose fate is not recorded yet.
+#[derive(Debug, Clone)]
+struct Pending {
+    timestamp: f64,
+    route: Option<RouteKind>,
+    note: String,
+}
+
+/// Kills what a previous supervisor of this run left behind and removes the
+/// run's stale shared memory, so that a resumed run starts clean.
+fn clean_previous(run_dir: &Path, names: &RunNames) -> Result<()> {
+    if let Some(status) = run_dir::read_status(run_dir) {
+        if status.supervisor_pid != std::process::id()
+            && process_matches(status.supervisor_pid, run_dir.to_string_lossy().as_ref())
+            && status.state == "running"
+        {
+            bail!(
+                "run {} is still supervised by pid {}; stop it first",
+                run_dir.display(),
+                status.supervisor_pid
+            );
+        }
+        let deadline = Instant::now() + Duration::from_secs(3);
+        for c in status.children.iter().filter_map(|c| c.pid) {
+            while process_matches(c, names.run_id()) {
+                signal(c, libc::SIGKILL);
+                if Instant::now() > deadline {
+                    bail!("process {c} of run {} does not die", names.run_id());
+                }
+                std::thread::sleep(Duration::from_millis(10));
+            }
+        }
+    }
+    let report = cleanup_dead_nodes(names)?;
+    let removed = remove_run_files(names)?;
+    if report.dead_nodes_removed > 0 || removed > 0 {
+        tracing::info!(
+            dead_nodes = report.dead_nodes_removed,
+            files = removed,
+            "removed stale resources of a previous supervisor"
+        );
+    }
+    Ok(())
+}
+
+/// Forwards a child's stderr to ours and remembers its last error line.
+fn forward_stderr(child: &mut Child, last_error: Arc<Mutex<String>>) {
+    if let Some(stderr) = child.stderr.take() {
+        std::thread::spawn(move || {
+            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                eprintln!("{line}");
+                if line.contains("ERROR") {
+                    if let Ok(mut l) = last_error.lock() {
+                        *l = line;
+                    }
+                }
+            }
+        });
+    }
+}
+
+struct Supervisor {
+    config: PipelineConfig,
+    names: RunNames,
+    run_dir: PathBuf,
+    services: Vec<Service>,
+    log: FrameLog,
+    rows: BTreeMap<u64, FrameRow>,
+    pending: HashMap<u64, Pending>,
+    router: Router,
+    next_seq: u64,
+    total: Option<u64>,
+    restarts: u64,
+    status_dirty: bool,
+    fatal: Option<String>,
+}
+
+impl Supervisor {
+    fn svc(&mut self, kind: ServiceKind) -> &mut Service {
+        self.services
+            .iter_mut()
+            .find(|s| s.kind == kind)
+            .expect("every kind has a service")
+    }
+
+    fn start(&mut self, kind: ServiceKind) {
+        let run_dir = self.run_dir.clone();
+        let mut args = vec![
+            "--run-id".to_string(),
+            self.names.run_id().to_string(),
+            "--config".to_string(),
+            run_dir
+                .join(run_dir::CONFIG_FILE)
+                .to_string_lossy()
+                .into_owned(),
+        ];
+        if kind == ServiceKind::CameraReader {
+            args.push("--start-seq".into());
+            args.push(self.next_seq.to_string());
+        }
+        let svc = self.svc(kind);
+        let program = svc.program.clone();
+        match spawn(&program, &args) {
+            Ok(mut child) => {
+                forward_stderr(&mut child, svc.last_error.clone());
+                tracing::info!(pid = child.id(), "started {}", kind.as_str());
+                svc.child = Some(child);
+                svc.state = SvcState::Starting {
+                    since: Instant::now(),
+                };
+                svc.started = Instant::now();
+            }
+            Err(e) => {
+                svc.state = SvcState::Failed {
+                    reason: format!("{e:#}"),
+                };
+            }
+        }
+        self.status_dirty = true;
+    }
+
+    fn availability(&self) -> Availability {
+        let ok = |k: ServiceKind| !self.services.iter().any(|s| s.kind == k && s.failed());
+        Availability {
+            segmenter: ok(ServiceKind::Segmenter),
+            propagator: ok(ServiceKind::Propagator),
+        }
+    }
+
+    /// Records the fate of one frame (once).
+    fn record(&mut self, row: FrameRow) -> Result<()> {
+        if self.rows.contains_key(&row.seq) {
+            return Ok(());
+        }
+        self.log.append(&row)?;
+        self.pending.remove(&row.seq);
+        self.rows.insert(row.seq, row);
+        while self.rows.contains_key(&self.next_seq) {
+            self.next_seq += 1;
+        }
+        self.status_dirty = true;
+        Ok(())
+    }
+
+    fn on_track(&mut self, t: Track) -> Result<()> {
+        if self.rows.contains_key(&t.seq) {
+            return Ok(());
+        }
+        let received = now_ns();
+        if self.config.run.mode == ClockMode::Realtime {
+            // Frames older than a tracked one will never be tracked: dropped.
+            let older: Vec<u64> = self
+                .pending
+                .keys()
+                .copied()
+                .filter(|&s| s < t.seq)
+                .collect();
+            for seq in older {
+                self.record_dropped(seq, "a newer frame was tracked first")?;
+            }
+        }
+        let pending = self.pending.get(&t.seq).cloned();
+        let state = TrackState::from_u32(t.state)
+            .map(|s| s.as_str())
+            .unwrap_or("invalid");
+        let route = pending
+            .as_ref()
+            .and_then(|p| p.route)
+            .map(|r| r.as_str())
+            .unwrap_or("none");
+        self.router.on_track(t.next_needs_keyframe != 0);
+        self.record(FrameRow {
+            seq: t.seq,
+            timestamp: t.source_timestamp,
+            state: state.to_string(),
+            route: route.to_string(),
+            mask_source: MaskSource::from_u32(t.mask_source)
+                .unwrap_or(MaskSource::None)
+                .as_str()
+                .to_string(),
+            keyframe: t.keyframe_inserted != 0,
+            next_keyframe: t.next_needs_keyframe != 0,
+            pose: t.pose,
+            features: t.counts.features,
+            features_masked: t.counts.features_masked,
+            inliers: t.counts.inliers,
+            map_points: t.counts.map_points,
+            keyframes: t.counts.keyframes,
+            stamps: t.stamps,
+            track_received_ns: received,
+            note: pending.map(|p| p.note).unwrap_or_default(),
+        })
+    }
+
+    fn record_dropped(&mut self, seq: u64, why: &str) -> Result<()> {
+        let p = self.pending.get(&seq).cloned();
+        self.record(FrameRow {
+            seq,
+            timestamp: p.as_ref().map(|p| p.timestamp).unwrap_or(0.0),
+            state: "dropped".into(),
+            route: p
+                .and_then(|p| p.route)
+                .map(|r| r.as_str())
+                .unwrap_or("none")
+                .into(),
+            mask_source: "none".into(),
+            note: why.into(),
+            ..Default::default()
+        })
+    }
+
+    fn on_frame(
+        &mut self,
+        h: &FrameHeader,
+        routes: &pipeline::transport::Sender<Route, ()>,
+    ) -> Result<()> {
+        tracing::debug!(seq = h.seq, flags = h.flags, "frame");
+        if h.has(frame_flags::END_OF_STREAM) {
+            if self.total != Some(h.seq) {
+                tracing::info!(frames = h.seq, "end of stream");
+            }
+            self.total = Some(h.seq);
+            self.status_dirty = true;
+            return Ok(());
+        }
+        if self.rows.contains_key(&h.seq) {
+            return Ok(());
+        }
+        let bad = h.has(frame_flags::BAD_INPUT);
+        let availability = self.availability();
+        let entry = self.pending.entry(h.seq).or_insert_with(|| Pending {
+            timestamp: h.source_timestamp,
+            route: None,
+            note: String::new(),
+        });
+        if bad {
+            entry.note = format!("bad input: {}", read_error_text(&h.error));
+        }
+        // A replayed frame keeps its first route: the decision is made once.
+        let kind = match entry.route {
+            Some(k) => k,
+            None => {
+                let k = self.router.route(h.seq, bad, availability);
+                entry.route = Some(k);
+                if k == RouteKind::Skip && !bad && !self.config.routing.no_masks {
+                    entry.note = "unmasked: no mask service available".into();
+                }
+                k
+            }
+        };
+        let mut stamps = h.stamps;
+        stamps.routed_ns = now_ns();
+        routes.send(Route {
+            seq: h.seq,
+            kind: kind as u32,
+            replay: h.has(frame_flags::REPLAY) as u32,
+            stamps,
+        })
+    }
+
+    /// Reaps dead children and decides on restarts.
+    fn watch_children(&mut self, stopping: bool) -> Result<bool> {
+        let mut someone_died = false;
+        let now = Instant::now();
+        let timeout = Duration::from_secs(self.config.supervisor.ready_timeout_s);
+        for i in 0..self.services.len() {
+            let svc = &mut self.services[i];
+            let Some(child) = svc.child.as_mut() else {
+                continue;
+            };
+            let status = match child.try_wait()? {
+                Some(s) => s,
+                None => {
+                    if let SvcState::Starting { since } = svc.state {
+                        if now.duration_since(since) > timeout {
+                            tracing::error!(
+                                "{} not ready after {timeout:?}; killing it",
+                                svc.kind.as_str()
+                            );
+                            signal(child.id(), libc::SIGKILL);
+                        }
+                    }
+                    continue;
+                }
+            };
+            let pid = child.id();
+            svc.child = None;
+            someone_died = true;
+            self.status_dirty = true;
+            if stopping {
+                svc.state = SvcState::Stopped;
+                continue;
+            }
+            let how = describe_exit(status);
+            let kind = svc.kind;
+            if is_input_error(status) {
+                let msg = svc.last_error.lock().map(|s| s.clone()).unwrap_or_default();
+                svc.state = SvcState::Failed {
+                    reason: format!("{} stopped on bad input ({how}): {msg}", kind.as_str()),
+                };
+                tracing::error!(
+                    "{} stopped on bad input ({how}); not restarting it",
+                    kind.as_str()
+                );
+                continue;
+            }
+            match svc.policy.on_death(now, now.duration_since(svc.started)) {
+                RestartDecision::RestartAfter(delay) => {
+                    tracing::warn!(
+                        pid,
+                        "{} died ({how}); restarting in {delay:?}",
+                        kind.as_str()
+                    );
+                    svc.state = SvcState::Backoff { until: now + delay };
+                    svc.restarts += 1;
+                    self.restarts += 1;
+                    run_dir::log_restart(
+                        &self.run_dir,
+                        &format!(
+                            "{} pid {pid} {how} next_seq {}",
+                            kind.as_str(),
+                            self.next_seq
+                        ),
+                    )?;
+                }
+                RestartDecision::GiveUp { restarts_in_window } => {
+                    let msg = svc.last_error.lock().map(|s| s.clone()).unwrap_or_default();
+                    let reason = format!(
+                        "{} died {} times within {} s (last: {how}); giving up on it. {msg}",
+                        kind.as_str(),
+                        restarts_in_window + 1,
+                        self.config.supervisor.restart_window_s
+                    );
+                    tracing::error!("{reason}");
+                    svc.state = SvcState::Failed { reason };
+                }
+            }
+        }
+        if someone_died {
+            // iceoryx2 dead-node detection: free the dead process's ports.
+            let report = cleanup_dead_nodes(&self.names)?;
+            if report.dead_nodes_removed > 0 {
+                tracing::debug!(
+                    nodes = report.dead_nodes_removed,
+                    "cleaned dead iceoryx2 nodes"
+                );
+            }
+        }
+        if !stopping {
+            for kind in ServiceKind::ALL {
+                if let SvcState::Backoff { until } = self.svc(kind).state {
+                    if now >= until {
+                        self.start(kind);
+                    }
+                }
+            }
+        }
+        Ok(someone_died)
+    }
+
+    fn write_status(&mut self, state: &str, error: Option<String>) {
+        let status = Status {
+            run_id: self.names.run_id().to_string(),
+            supervisor_pid: std::process::id(),
+            restarts: self.restarts,
+            frames_done: self.rows.len() as u64,
+            frames_total: self.total,
+            children: self
+                .services
+                .iter()
+                .map(|s| ChildStatus {
+                    service: s.kind.as_str().to_string(),
+                    pid: s.pid(),
+                    state: s.state_name().to_string(),
+                    restarts: s.restarts,
+                })
+                .collect(),
+            state: state.to_string(),
+            error,
+        };
+        if let Err(e) = run_dir::write_status(&self.run_dir, &status) {
+            tracing::warn!("cannot write status: {e:#}");
+        }
+        self.status_dirty = false;
+    }
+
+    /// Stops the services in order: the source first, the SLAM last.
+    fn stop_all(&mut self) {
+        let grace = Duration::from_millis(self.config.supervisor.stop_timeout_ms);
+        for kind in [
+            ServiceKind::CameraReader,
+            ServiceKind::Segmenter,
+            ServiceKind::Propagator,
+            ServiceKind::Slam,
+        ] {
+            let svc = self.svc(kind);
+            let Some(mut child) = svc.child.take() else {
+                svc.state = SvcState::Stopped;
+                continue;
+            };
+            signal(child.id(), libc::SIGTERM);
+            let deadline = Instant::now() + grace;
+            loop {
+                match child.try_wait() {
+                    Ok(Some(_)) => break,
+                    Ok(None) if Instant::now() < deadline => {
+                        std::thread::sleep(Duration::from_millis(5))
+                    }
+                    _ => {
+                        tracing::warn!(
+                            "{} ignored SIGTERM for {grace:?}; killing it",
+                            kind.as_str()
+                        );
+                        let _ = child.kill();
+                        let _ = child.wait();
+                        break;
+                    }
+                }
+            }
+            svc.state = SvcState::Stopped;
+        }
+        self.status_dirty = true;
+    }
+
+    fn complete(&self) -> bool {
+        self.total.is_some_and(|t| self.next_seq >= t)
+    }
+}
+
+/// Runs (or resumes) the run in `run_dir` to its end.
+pub fn execute(run_dir: &Path) -> Result<RunSummary> {
+    let (info, config) = run_dir::open(run_dir)?;
+    let names = RunNames::new(&info.run_id).map_err(|e| anyhow!(e))?;
+    let run_dir = run_dir.to_path_buf();
+    clean_previous(&run_dir, &names)?;
+    let (log, old_rows) = FrameLog::open(&run_dir)?;
+    let mut router = Router::new(config.routing.clone());
+    if let Some(last) = old_rows.last() {
+        let last_segment = old_rows
+            .iter()
+            .rev()
+            .find(|r| r.route == "segment")
+            .map(|r| r.seq);
+        router.resume(last.next_keyframe, last_segment);
+        tracing::info!(frames = old_rows.len(), "resuming run {}", info.run_id);
+    }
+    let mut services = Vec::new();
+    for kind in ServiceKind::ALL {
+        services.push(Service {
+            kind,
+            program: service_program(&config, kind)?,
+            child: None,
+            state: SvcState::NotStarted,
+            policy: RestartPolicy::new(&config.supervisor),
+            started: Instant::now(),
+            restarts: 0,
+            last_error: Arc::new(Mutex::new(String::new())),
+        });
+    }
+    let mut sup = Supervisor {
+        names: names.clone(),
+        run_dir: run_dir.clone(),
+        services,
+        log,
+        rows: old_rows.into_iter().map(|r| (r.seq, r)).collect(),
+        pending: HashMap::new(),
+        router,
+        next_seq: 0,
+        total: None,
+        restarts: run_dir::restart_count(&run_dir),
+        status_dirty: true,
+        fatal: None,
+        config,
+    };
+    while sup.rows.contains_key(&sup.next_seq) {
+        sup.next_seq += 1;
+    }
+
+    let interrupted = supervise(&mut sup)?;
+    sup.write_status(
+        if sup.fatal.is_some() {
+            "failed"
+        } else if interrupted {
+            "interrupted"
+        } else {
+            "completed"
+        },
+        sup.fatal.clone(),
+    );
+
+    // Every process of the run is gone: nothing of it may stay in /dev/shm.
+    cleanup_dead_nodes(&names)?;
+    let left = run_files(&names)?;
+    if !left.is_empty() {
+        // Normally only iceoryx2's global management segment, which outlives
+        // the last node by design; anything else is a killed process's.
+        tracing::debug!(files = ?left, "removing the run's remaining iceoryx2 files");
+        remove_run_files(&names)?;
+    }
+    let summary = finish_outputs(&sup, interrupted)?;
+    if let Some(fatal) = sup.fatal {
+        bail!("{fatal}");
+    }
+    Ok(summary)
+}
+
+/// The event loop; returns true when interrupted by SIGINT/SIGTERM.
+fn supervise(sup: &mut Supervisor) -> Result<bool> {
+    let transport = Transport::open(&sup.names, "supervisor")?;
+    let frames = transport.slice_receiver::<FrameHeader>(Topic::Frames)?;
+    let tracks = transport.receiver::<Track>(Topic::Tracks)?;
+    let lifecycle = transport.receiver::<Lifecycle>(Topic::Lifecycle)?;
+    let routes = transport.sender::<Route>(Topic::Routes)?;
+    let control = transport.sender::<Control>(Topic::Control)?;
+    let ws = waitset()?;
+    let _a = attach(&ws, &frames)?;
+    let _b = attach(&ws, &tracks)?;
+    let _c = attach(&ws, &lifecycle)?;
+    let period = Duration::from_millis(sup.config.supervisor.watch_period_ms);
+    let lockstep = sup.config.run.mode == ClockMode::Lockstep;
+
+    for kind in [
+        ServiceKind::Slam,
+        ServiceKind::Segmenter,
+        ServiceKind::Propagator,
+    ] {
+        sup.start(kind);
+    }
+    let mut last_progress = Instant::now();
+    let mut last_sweep = Instant::now();
+    let mut end_seen_at: Option<Instant> = None;
+    let mut interrupted = false;
+    loop {
+        if wait(&ws, period)? == Wake::Terminate {
+            tracing::warn!("termination requested; stopping the services");
+            interrupted = true;
+            break;
+        }
+        for msg in lifecycle.drain()? {
+            let Some(kind) = ServiceKind::from_u32(msg.service) else {
+                continue;
+            };
+            let svc = sup.svc(kind);
+            if svc.pid() != Some(msg.pid) {
+                continue;
+            }
+            let was_restart = svc.restarts > 0;
+            svc.state = SvcState::Ready;
+            sup.status_dirty = true;
+            tracing::info!("{} ready (pid {})", kind.as_str(), msg.pid);
+            // Lockstep recovery: the in-flight frame may have been lost with
+            // the dead process; the reader publishes it again.
+            if lockstep && was_restart && kind != ServiceKind::CameraReader && !sup.complete() {
+                control.send(Control {
+                    replay_seq: sup.next_seq,
+                })?;
+            }
+        }
+        // The source starts once the services that consume it are up.
+        if sup.svc(ServiceKind::CameraReader).state == SvcState::NotStarted {
+            let up = |k| {
+                matches!(
+                    sup.services.iter().find(|s| s.kind == k).map(|s| &s.state),
+                    Some(SvcState::Ready) | Some(SvcState::Failed { .. })
+                )
+            };
+            if up(ServiceKind::Slam) && up(ServiceKind::Segmenter) && up(ServiceKind::Propagator) {
+                sup.start(ServiceKind::CameraReader);
+            }
+        }
+        // Tracks before frames: frame n+1 is only published after Track(n),
+        // so Track(n)'s keyframe flag is known when n+1 is routed.
+        for t in tracks.drain()? {
+            sup.on_track(t)?;
+        }
+        frames.clear_wakeups();
+        while let Some(sample) = frames.next_sample()? {
+            let header = *sample.user_header();
+            drop(sample);
+            sup.on_frame(&header, &routes)?;
+        }
+        sup.watch_children(false)?;
+        for kind in [ServiceKind::CameraReader, ServiceKind::Slam] {
+            if let SvcState::Failed { reason } = &sup.svc(kind).state {
+                sup.fatal = Some(reason.clone());
+            }
+        }
+        if sup.fatal.is_some() {
+            break;
+        }
+        if last_sweep.elapsed() > Duration::from_secs(1) {
+            cleanup_dead_nodes(&sup.names)?;
+            last_sweep = Instant::now();
+        }
+        if sup.complete() {
+            break;
+        }
+        if let Some(total) = sup.total {
+            // Real time: the last frames may never be tracked; give them a moment.
+            let seen = *end_seen_at.get_or_insert_with(Instant::now);
+            if !lockstep && seen.elapsed() > Duration::from_secs(2) {
+                for seq in sup.next_seq..total {
+                    if !sup.rows.contains_key(&seq) {
+                        sup.record_dropped(seq, "not tracked before the end of the stream")?;
+                    }
+                }
+            }
+        }
+        if last_progress.elapsed() > Duration::from_secs(2) {
+            tracing::info!(
+                "progress: {} / {} frames, {} restarts",
+                sup.rows.len(),
+                sup.total
+                    .map(|t| t.to_string())
+                    .unwrap_or_else(|| "?".into()),
+                sup.restarts
+            );
+            last_progress = Instant::now();
+        }
+        if sup.status_dirty {
+            sup.write_status("running", None);
+        }
+    }
+    sup.stop_all();
+    sup.watch_children(true)?;
+    Ok(interrupted)
+}
+
+/// Trajectories, latency summary and trace, derived from `frames.csv`.
+fn finish_outputs(sup: &Supervisor, interrupted: bool) -> Result<RunSummary> {
+    let rows: Vec<FrameRow> = sup.rows.values().cloned().collect();
+    let dir = &sup.run_dir;
+    let tracked = write_tum(&dir.join("trajectory.txt"), &rows, FrameRow::is_tracked)?;
+    write_tum(&dir.join("keyframes.txt"), &rows, |r| {
+        r.keyframe && r.is_tracked()
+    })?;
+    let summary = latency::summarize(&rows);
+    std::fs::write(
+        dir.join("latency_summary.json"),
+        serde_json::to_string_pretty(&serde_json::json!({
+            "frames": rows.len(),
+            "stages": summary,
+        }))?,
+    )?;
+    std::fs::write(
+        dir.join("trace.json"),
+        latency::trace_json(&rows).to_string(),
+    )?;
+    let table = latency::format_table(&summary);
+    Ok(RunSummary {
+        run_dir: dir.clone(),
+        frames: rows.len() as u64,
+        tracked: tracked as u64,
+        restarts: sup.restarts,
+        interrupted,
+        latency_table: table,
+    })
+}

@@ -1,0 +1,158 @@
+//! The run folder: everything a run writes, and what a resumed supervisor
+//! needs to continue it (the resolved config, the run id, the status file).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use pipeline::config::PipelineConfig;
+use serde::{Deserialize, Serialize};
+
+pub const CONFIG_FILE: &str = "config.toml";
+pub const RUN_FILE: &str = "run.json";
+pub const STATUS_FILE: &str = "status.json";
+pub const RESTARTS_FILE: &str = "restarts.log";
+
+/// Identity of a run, written once at its start.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct RunInfo {
+    pub run_id: String,
+    pub dataset: PathBuf,
+    pub created_unix_s: u64,
+}
+
+/// Live state of a run for people and tests (`status.json`), rewritten
+/// atomically whenever something changes.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
+pub struct Status {
+    pub run_id: String,
+    pub supervisor_pid: u32,
+    /// Restarts of services by supervisors of this run (kept across resumes).
+    pub restarts: u64,
+    pub frames_done: u64,
+    pub frames_total: Option<u64>,
+    pub children: Vec<ChildStatus>,
+    /// "running", "completed", "interrupted", "failed".
+    pub state: String,
+    pub error: Option<String>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct ChildStatus {
+    pub service: String,
+    pub pid: Option<u32>,
+    /// "starting", "ready", "backoff", "failed", "stopped".
+    pub state: String,
+    pub restarts: u64,
+}
+
+/// A fresh run id: 8 hex digits from the clock and the pid.
+pub fn new_run_id() -> String {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos())
+        .unwrap_or(0);
+    let mixed = (nanos as u64) ^ ((std::process::id() as u64) << 32);
+    format!(
+        "{:08x}",
+        (mixed ^ (mixed >> 29)).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 32
+    )
+}
+
+/// Creates `output_dir/<run id>` with the resolved config and run info.
+pub fn create(output_dir: &Path, run_id: &str, config: &PipelineConfig) -> Result<PathBuf> {
+    let dir = output_dir.join(run_id);
+    if dir.exists() {
+        bail!("run folder {} already exists", dir.display());
+    }
+    std::fs::create_dir_all(&dir)
+        .with_context(|| format!("cannot create run folder {}", dir.display()))?;
+    std::fs::write(dir.join(CONFIG_FILE), config.to_toml())?;
+    let info = RunInfo {
+        run_id: run_id.to_string(),
+        dataset: config.source.path.clone(),
+        created_unix_s: std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_secs())
+            .unwrap_or(0),
+    };
+    std::fs::write(dir.join(RUN_FILE), serde_json::to_string_pretty(&info)?)?;
+    Ok(dir)
+}
+
+/// Reads an existing run folder (for resume).
+pub fn open(dir: &Path) -> Result<(RunInfo, PipelineConfig)> {
+    if !dir.is_dir() {
+        bail!("run folder {} does not exist", dir.display());
+    }
+    let info_path = dir.join(RUN_FILE);
+    let text = std::fs::read_to_string(&info_path).with_context(|| {
+        format!(
+            "{} is not a dynslam run folder (no {RUN_FILE})",
+            dir.display()
+        )
+    })?;
+    let info: RunInfo = serde_json::from_str(&text)
+        .with_context(|| format!("{}: malformed", info_path.display()))?;
+    let config = PipelineConfig::load(&dir.join(CONFIG_FILE))?;
+    Ok((info, config))
+}
+
+pub fn read_status(dir: &Path) -> Option<Status> {
+    let text = std::fs::read_to_string(dir.join(STATUS_FILE)).ok()?;
+    serde_json::from_str(&text).ok()
+}
+
+/// Writes `status.json` via a temporary file and a rename, so readers never
+/// see a half-written file.
+pub fn write_status(dir: &Path, status: &Status) -> Result<()> {
+    let tmp = dir.join(format!("{STATUS_FILE}.tmp"));
+    std::fs::write(&tmp, serde_json::to_string_pretty(status)?)?;
+    std::fs::rename(&tmp, dir.join(STATUS_FILE))?;
+    Ok(())
+}
+
+/// Appends one restart record; the number of lines is the run's restart count.
+pub fn log_restart(dir: &Path, line: &str) -> Result<()> {
+    use std::io::Write;
+    let mut f = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(dir.join(RESTARTS_FILE))?;
+    writeln!(f, "{line}")?;
+    Ok(())
+}
+
+pub fn restart_count(dir: &Path) -> u64 {
+    std::fs::read_to_string(dir.join(RESTARTS_FILE))
+        .map(|t| t.lines().filter(|l| !l.trim().is_empty()).count() as u64)
+        .unwrap_or(0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn run_ids_are_valid_names() {
+        let id = new_run_id();
+        assert_eq!(id.len(), 8);
+        shared_types::names::RunNames::new(&id).unwrap();
+    }
+
+    #[test]
+    fn create_then_open_round_trips() {
+        let base = std::env::temp_dir().join(format!("dynslam-rundir-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&base);
+        let mut cfg = PipelineConfig::parse("").unwrap();
+        cfg.source.path = PathBuf::from("/data/x");
+        let dir = create(&base, "abc", &cfg).unwrap();
+        let (info, back) = open(&dir).unwrap();
+        assert_eq!(info.run_id, "abc");
+        assert_eq!(back, cfg);
+        assert!(create(&base, "abc", &cfg).is_err());
+        log_restart(&dir, "a").unwrap();
+        log_restart(&dir, "b").unwrap();
+        assert_eq!(restart_count(&dir), 2);
+        std::fs::remove_dir_all(&base).ok();
+    }
+}

@@ -1,0 +1,449 @@
+//! The only place where the pipeline's shared-memory payloads live.
+//!
+//! Every type here is `#[repr(C)]`, self-contained (no pointers, no heap) and
+//! `ZeroCopySend`, so that it can sit in an iceoryx2 sample that several
+//! processes read in place. Enumerations travel as plain integers: a value
+//! written by another process is decoded with `from_u32`, so a corrupt or newer
+//! writer can never produce an invalid Rust enum in shared memory.
+//!
+//! Large pixel data travels as the `[u8]` slice payload of a sample whose user
+//! header is one of the `*Header` types below (static allocation strategy, the
+//! maximum size fixed by the pipeline configuration).
+
+use iceoryx2::prelude::ZeroCopySend;
+
+pub mod names;
+
+/// Maximum number of object instances carried by one [`MasksHeader`].
+pub const MAX_INSTANCES: usize = 32;
+
+/// Label value of "no object" in a mask label image; instance `i` is `i + 1`.
+pub const LABEL_BACKGROUND: u8 = 0;
+
+/// CLOCK_MONOTONIC instants (nanoseconds) stamped by each stage. Every payload
+/// carries the stamps of the stages it has passed so that any consumer (the
+/// supervisor's latency report in particular) sees the whole history of a
+/// frame without joining messages. Zero means "this stage has not happened".
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
+pub struct StageStamps {
+    /// Camera-reader starts producing the frame (before reading/decoding).
+    pub capture_ns: u64,
+    /// Camera-reader hands the finished frame to shared memory.
+    pub published_ns: u64,
+    /// Supervisor published the routing decision.
+    pub routed_ns: u64,
+    /// Segmenter or propagator starts working on the frame.
+    pub masks_start_ns: u64,
+    /// Segmenter or propagator published the masks.
+    pub masks_done_ns: u64,
+    /// SLAM process took the frame out of shared memory (transport end).
+    pub slam_received_ns: u64,
+    /// SLAM starts tracking (frame and masks both present).
+    pub track_start_ns: u64,
+    /// SLAM published the track result.
+    pub track_done_ns: u64,
+}
+
+/// Pixel layout of the colour part of a frame.
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PixelFormat {
+    Rgb8 = 1,
+}
+
+impl PixelFormat {
+    pub fn from_u32(v: u32) -> Option<Self> {
+        match v {
+            1 => Some(Self::Rgb8),
+            _ => None,
+        }
+    }
+    pub fn bytes_per_pixel(self) -> usize {
+        match self {
+            Self::Rgb8 => 3,
+        }
+    }
+}
+
+/// Bit flags of [`FrameHeader::flags`].
+pub mod frame_flags {
+    /// The source could not produce this frame (corrupt or missing file,
+    /// wrong size, ...). The pixel payload is empty; the reason was logged by
+    /// the camera-reader and is in `FrameHeader::error`.
+    pub const BAD_INPUT: u32 = 1 << 0;
+    /// No more frames will follow; `seq` is the number of frames produced.
+    pub const END_OF_STREAM: u32 = 1 << 1;
+    /// This frame was already published once and is published again after a
+    /// service restart (lockstep recovery). Consumers that already handled it
+    /// ignore it.
+    pub const REPLAY: u32 = 1 << 2;
+}
+
+/// Length of the fixed, NUL-padded UTF-8 error text carried by headers.
+pub const ERROR_TEXT_LEN: usize = 192;
+
+/// User header of a frame sample. The slice payload holds `width*height*3`
+/// bytes of RGB followed, when `has_depth != 0`, by `width*height` native
+/// endian `u16` depth values.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, ZeroCopySend)]
+pub struct FrameHeader {
+    pub seq: u64,
+    /// Timestamp of the source (TUM timestamp in seconds, or file order).
+    pub source_timestamp: f64,
+    pub width: u32,
+    pub height: u32,
+    /// A [`PixelFormat`] value.
+    pub pixel_format: u32,
+    pub has_depth: u32,
+    /// Depth value per metre (5000 for TUM).
+    pub depth_scale: f32,
+    /// [`frame_flags`] bits.
+    pub flags: u32,
+    pub stamps: StageStamps,
+    /// Why the frame is [`frame_flags::BAD_INPUT`] (NUL padded).
+    pub error: [u8; ERROR_TEXT_LEN],
+}
+
+impl Default for FrameHeader {
+    fn default() -> Self {
+        Self {
+            seq: 0,
+            source_timestamp: 0.0,
+            width: 0,
+            height: 0,
+            pixel_format: PixelFormat::Rgb8 as u32,
+            has_depth: 0,
+            depth_scale: 0.0,
+            flags: 0,
+            stamps: StageStamps::default(),
+            error: [0; ERROR_TEXT_LEN],
+        }
+    }
+}
+
+impl FrameHeader {
+    pub fn has(&self, flag: u32) -> bool {
+        self.flags & flag != 0
+    }
+    pub fn rgb_len(&self) -> usize {
+        self.width as usize * self.height as usize * 3
+    }
+    pub fn depth_len(&self) -> usize {
+        if self.has_depth != 0 {
+            self.width as usize * self.height as usize * 2
+        } else {
+            0
+        }
+    }
+}
+
+/// Where a frame's masks come from.
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum RouteKind {
+    /// Keyframe path: run the instance segmenter.
+    Segment = 1,
+    /// Ordinary frame: propagate the latest masks.
+    Propagate = 2,
+    /// No masks will be made (bad frame, or no mask service available); SLAM
+    /// tracks the frame unmasked or marks it.
+    Skip = 3,
+}
+
+impl RouteKind {
+    pub fn from_u32(v: u32) -> Option<Self> {
+        match v {
+            1 => Some(Self::Segment),
+            2 => Some(Self::Propagate),
+            3 => Some(Self::Skip),
+            _ => None,
+        }
+    }
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Segment => "segment",
+            Self::Propagate => "propagate",
+            Self::Skip => "skip",
+        }
+    }
+}
+
+/// Supervisor's routing decision for one frame.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+pub struct Route {
+    pub seq: u64,
+    /// A [`RouteKind`] value.
+    pub kind: u32,
+    /// Non-zero when this route is re-issued after a restart.
+    pub replay: u32,
+    pub stamps: StageStamps,
+}
+
+/// Which model produced a set of masks.
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum MaskSource {
+    None = 0,
+    Segmenter = 1,
+    Propagator = 2,
+}
+
+impl MaskSource {
+    pub fn from_u32(v: u32) -> Option<Self> {
+        match v {
+            0 => Some(Self::None),
+            1 => Some(Self::Segmenter),
+            2 => Some(Self::Propagator),
+            _ => None,
+        }
+    }
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::None => "none",
+            Self::Segmenter => "segmenter",
+            Self::Propagator => "propagator",
+        }
+    }
+}
+
+/// One dynamic object instance in a [`MasksHeader`].
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+pub struct Instance {
+    /// Object identity kept across propagation (the segmenter assigns it).
+    pub object_id: u32,
+    /// Class id in the model's class list (COCO for the shipped models).
+    pub class_id: u32,
+    pub score: f32,
+    /// Bounding box x0, y0, x1, y1 in pixels of the frame.
+    pub bbox: [f32; 4],
+}
+
+/// Bit flags of [`MasksHeader::flags`].
+pub mod mask_flags {
+    /// The worker could not produce masks for this frame (model failure);
+    /// the label image is empty and SLAM tracks the frame unmasked.
+    pub const FAILED: u32 = 1 << 0;
+}
+
+/// User header of a masks sample. The slice payload is a `width*height` label
+/// image: 0 is background, `i + 1` is `instances[i]`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, ZeroCopySend)]
+pub struct MasksHeader {
+    pub seq: u64,
+    /// A [`MaskSource`] value.
+    pub source: u32,
+    pub width: u32,
+    pub height: u32,
+    pub num_instances: u32,
+    /// [`mask_flags`] bits.
+    pub flags: u32,
+    /// Inference time of the model alone (nanoseconds).
+    pub inference_ns: u64,
+    pub instances: [Instance; MAX_INSTANCES],
+    pub stamps: StageStamps,
+}
+
+impl Default for MasksHeader {
+    fn default() -> Self {
+        Self {
+            seq: 0,
+            source: MaskSource::None as u32,
+            width: 0,
+            height: 0,
+            num_instances: 0,
+            flags: 0,
+            inference_ns: 0,
+            instances: [Instance::default(); MAX_INSTANCES],
+            stamps: StageStamps::default(),
+        }
+    }
+}
+
+impl MasksHeader {
+    pub fn instances(&self) -> &[Instance] {
+        &self.instances[..(self.num_instances as usize).min(MAX_INSTANCES)]
+    }
+}
+
+/// Tracking state of one frame.
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum TrackState {
+    NotInitialised = 0,
+    Ok = 1,
+    Lost = 2,
+    Relocalised = 3,
+    /// The frame was not tracked (bad input); see the run's log.
+    Skipped = 4,
+}
+
+impl TrackState {
+    pub fn from_u32(v: u32) -> Option<Self> {
+        match v {
+            0 => Some(Self::NotInitialised),
+            1 => Some(Self::Ok),
+            2 => Some(Self::Lost),
+            3 => Some(Self::Relocalised),
+            4 => Some(Self::Skipped),
+            _ => None,
+        }
+    }
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::NotInitialised => "not_initialised",
+            Self::Ok => "ok",
+            Self::Lost => "lost",
+            Self::Relocalised => "relocalised",
+            Self::Skipped => "skipped",
+        }
+    }
+    /// True when the frame has a valid pose.
+    pub fn is_tracked(self) -> bool {
+        matches!(self, Self::Ok | Self::Relocalised)
+    }
+}
+
+/// Per-frame counts reported by SLAM.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
+pub struct TrackCounts {
+    pub features: u32,
+    /// Features dropped because they fell inside a dynamic mask.
+    pub features_masked: u32,
+    pub inliers: u32,
+    pub map_points: u32,
+    pub keyframes: u32,
+}
+
+/// SLAM's result for one frame, and its wish for the next one.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+pub struct Track {
+    pub seq: u64,
+    pub source_timestamp: f64,
+    /// World-from-camera pose: tx ty tz qx qy qz qw (TUM order).
+    pub pose: [f64; 7],
+    /// A [`TrackState`] value.
+    pub state: u32,
+    /// Non-zero when this frame was inserted as a keyframe.
+    pub keyframe_inserted: u32,
+    /// Non-zero when SLAM wants the *next* frame to be a keyframe (routing).
+    pub next_needs_keyframe: u32,
+    /// The [`MaskSource`] of the masks used for this frame.
+    pub mask_source: u32,
+    pub counts: TrackCounts,
+    pub stamps: StageStamps,
+}
+
+/// Which service a [`Lifecycle`] message is about.
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ServiceKind {
+    CameraReader = 1,
+    Segmenter = 2,
+    Propagator = 3,
+    Slam = 4,
+}
+
+impl ServiceKind {
+    pub const ALL: [ServiceKind; 4] = [
+        ServiceKind::Slam,
+        ServiceKind::Segmenter,
+        ServiceKind::Propagator,
+        ServiceKind::CameraReader,
+    ];
+    pub fn from_u32(v: u32) -> Option<Self> {
+        match v {
+            1 => Some(Self::CameraReader),
+            2 => Some(Self::Segmenter),
+            3 => Some(Self::Propagator),
+            4 => Some(Self::Slam),
+            _ => None,
+        }
+    }
+    /// The name used for binaries, configuration sections and logs.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::CameraReader => "camera-reader",
+            Self::Segmenter => "segmenter",
+            Self::Propagator => "propagator",
+            Self::Slam => "slam",
+        }
+    }
+}
+
+/// Readiness handshake: a service announces that all its ports are open.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+pub struct Lifecycle {
+    /// A [`ServiceKind`] value.
+    pub service: u32,
+    pub pid: u32,
+    pub ready_ns: u64,
+}
+
+/// Supervisor's commands to the camera-reader.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+pub struct Control {
+    /// Publish frame `seq` again (lockstep recovery after a restart).
+    pub replay_seq: u64,
+}
+
+/// Writes `text` into a fixed NUL-padded buffer, cutting at a char boundary.
+pub fn write_error_text(buf: &mut [u8; ERROR_TEXT_LEN], text: &str) {
+    *buf = [0; ERROR_TEXT_LEN];
+    let mut end = text.len().min(ERROR_TEXT_LEN - 1);
+    while !text.is_char_boundary(end) {
+        end -= 1;
+    }
+    buf[..end].copy_from_slice(&text.as_bytes()[..end]);
+}
+
+/// Reads a NUL-padded text written by [`write_error_text`].
+pub fn read_error_text(buf: &[u8; ERROR_TEXT_LEN]) -> String {
+    let end = buf.iter().position(|&b| b == 0).unwrap_or(buf.len());
+    String::from_utf8_lossy(&buf[..end]).into_owned()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn error_text_round_trips_and_truncates_on_char_boundary() {
+        let mut buf = [0u8; ERROR_TEXT_LEN];
+        write_error_text(&mut buf, "rgb/1.png: corrupt");
+        assert_eq!(read_error_text(&buf), "rgb/1.png: corrupt");
+        let long = "é".repeat(200);
+        write_error_text(&mut buf, &long);
+        let back = read_error_text(&buf);
+        assert!(back.len() < ERROR_TEXT_LEN);
+        assert!(back.chars().all(|c| c == 'é'));
+    }
+
+    #[test]
+    fn enums_reject_unknown_values() {
+        assert_eq!(RouteKind::from_u32(2), Some(RouteKind::Propagate));
+        assert_eq!(RouteKind::from_u32(0), None);
+        assert_eq!(TrackState::from_u32(99), None);
+        assert_eq!(ServiceKind::from_u32(4), Some(ServiceKind::Slam));
+    }
+
+    #[test]
+    fn frame_lengths_follow_header() {
+        let h = FrameHeader {
+            width: 4,
+            height: 2,
+            has_depth: 1,
+            ..Default::default()
+        };
+        assert_eq!(h.rgb_len(), 24);
+        assert_eq!(h.depth_len(), 16);
+    }
+}

@@ -1,0 +1,161 @@
+//! Helpers of the workspace-level tests: run the real `dynslam` binary and
+//! read what it wrote.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use pipeline::transport::run_files;
+use shared_types::names::RunNames;
+
+/// target/release (the tests run from target/release/deps).
+pub fn bin_dir() -> PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    let dir = exe.parent().unwrap().parent().unwrap().to_path_buf();
+    assert!(
+        dir.join("dynslam").is_file(),
+        "{} has no dynslam binary: build first (cargo build --release --workspace)",
+        dir.display()
+    );
+    dir
+}
+
+pub fn dynslam() -> PathBuf {
+    bin_dir().join("dynslam")
+}
+
+pub fn shared_tum() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data/tum/rgbd_dataset_freiburg1_rpy_first300")
+}
+
+/// A fresh scratch folder for one test.
+pub fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("dynslam-it-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// Writes a pipeline config; `extra` is appended TOML.
+pub fn write_config(dir: &Path, extra: &str) -> PathBuf {
+    let path = dir.join("pipeline.toml");
+    std::fs::write(&path, extra).unwrap();
+    path
+}
+
+/// Result of one `dynslam run`.
+pub struct RunResult {
+    pub output: Output,
+    pub run_dir: PathBuf,
+    pub run_id: String,
+}
+
+impl RunResult {
+    pub fn stderr(&self) -> String {
+        String::from_utf8_lossy(&self.output.stderr).into_owned()
+    }
+    pub fn success(&self) -> bool {
+        self.output.status.success()
+    }
+}
+
+/// Runs `dynslam run DATASET --config CFG` to completion.
+pub fn run(dataset: &Path, config: &Path, out: &Path, run_id: &str, extra: &[&str]) -> RunResult {
+    let output = Command::new(dynslam())
+        .arg("run")
+        .arg(dataset)
+        .arg("--config")
+        .arg(config)
+        .arg("--output-dir")
+        .arg(out)
+        .args(["--run-id", run_id])
+        .args(extra)
+        .env("RUST_LOG", "info")
+        .output()
+        .unwrap();
+    RunResult {
+        output,
+        run_dir: out.join(run_id),
+        run_id: run_id.to_string(),
+    }
+}
+
+/// A frames.csv row as name -> value.
+pub type Row = std::collections::HashMap<String, String>;
+
+pub fn read_rows(run_dir: &Path) -> Vec<Row> {
+    let text = std::fs::read_to_string(run_dir.join("frames.csv")).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<String> = lines.next().unwrap().split(',').map(String::from).collect();
+    lines
+        .map(|l| {
+            header
+                .iter()
+                .cloned()
+                .zip(l.splitn(header.len(), ',').map(String::from))
+                .collect()
+        })
+        .collect()
+}
+
+/// Asserts that nothing of the run is left in shared memory.
+pub fn assert_no_shm_left(run_id: &str) {
+    let names = RunNames::new(run_id).unwrap();
+    let left = run_files(&names).unwrap();
+    assert!(left.is_empty(), "run {run_id} left files behind: {left:?}");
+}
+
+/// Pids of live processes whose command line mentions `needle`.
+pub fn processes_mentioning(needle: &str) -> Vec<u32> {
+    let mut out = Vec::new();
+    for entry in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
+            continue;
+        };
+        if let Ok(cmd) = std::fs::read(format!("/proc/{pid}/cmdline")) {
+            let cmd = String::from_utf8_lossy(&cmd);
+            let state = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+            let zombie = state.split_whitespace().nth(2) == Some("Z");
+            if cmd.contains(needle) && !zombie && pid != std::process::id() {
+                out.push(pid);
+            }
+        }
+    }
+    out
+}
+
+/// Makes a small TUM folder from the first `n` frames of the shared sequence
+/// (files copied, lists rewritten), to be damaged by a test.
+pub fn small_tum(dir: &Path, n: usize) -> PathBuf {
+    let src = shared_tum();
+    let dst = dir.join("tum");
+    std::fs::create_dir_all(dst.join("rgb")).unwrap();
+    std::fs::create_dir_all(dst.join("depth")).unwrap();
+    let assoc = std::fs::read_to_string(src.join("associations.txt")).unwrap();
+    let mut rgb_txt = String::from("# color images\n");
+    let mut depth_txt = String::from("# depth images\n");
+    for line in assoc.lines().filter(|l| !l.starts_with('#')).take(n) {
+        let f: Vec<&str> = line.split_whitespace().collect();
+        std::fs::copy(src.join(f[1]), dst.join(f[1])).unwrap();
+        std::fs::copy(src.join(f[3]), dst.join(f[3])).unwrap();
+        rgb_txt.push_str(&format!("{} {}\n", f[0], f[1]));
+        depth_txt.push_str(&format!("{} {}\n", f[2], f[3]));
+    }
+    std::fs::write(dst.join("rgb.txt"), rgb_txt).unwrap();
+    std::fs::write(dst.join("depth.txt"), depth_txt).unwrap();
+    dst
+}
+
+/// The rgb file of frame `i` of a small TUM folder.
+pub fn rgb_file(tum: &Path, i: usize) -> PathBuf {
+    let text = std::fs::read_to_string(tum.join("rgb.txt")).unwrap();
+    let line = text.lines().filter(|l| !l.starts_with('#')).nth(i).unwrap();
+    tum.join(line.split_whitespace().nth(1).unwrap())
+}
+
+pub fn depth_file(tum: &Path, i: usize) -> PathBuf {
+    let text = std::fs::read_to_string(tum.join("depth.txt")).unwrap();
+    let line = text.lines().filter(|l| !l.starts_with('#')).nth(i).unwrap();
+    tum.join(line.split_whitespace().nth(1).unwrap())
+}

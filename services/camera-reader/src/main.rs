@@ -95,9 +95,10 @@ impl Player {
             .sender
             .loan(self.geometry.payload_len(entry.depth.is_some()))?;
         if let Err(e) = decode_frame(entry, self.geometry, sample.payload_mut()) {
+            // The frame still goes out (marked, pixels to be ignored) so that
+            // every consumer and the outputs account for it.
             tracing::error!(seq, "bad input frame: {e}");
             mark_bad(&mut header, &e);
-            sample = self.sender.loan(0)?;
         }
         header.stamps.published_ns = now_ns();
         *sample.user_header_mut() = header;

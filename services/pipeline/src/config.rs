@@ -129,11 +129,12 @@ pub struct SupervisorConfig {
     /// First restart delay; doubled after every restart of the same service.
     pub restart_backoff_initial_ms: u64,
     pub restart_backoff_max_ms: u64,
-    /// A service that stays up this long gets its backoff reset.
+    /// A service that stays up this long gets its backoff and its crash
+    /// count reset.
     pub restart_backoff_reset_s: u64,
-    /// Give up on a service after this many restarts within `restart_window_s`.
+    /// Give up on a service that died this many times in a row without
+    /// staying up `restart_backoff_reset_s` (a crash loop).
     pub restart_limit: u32,
-    pub restart_window_s: u64,
     /// How long a (re)started service may take to announce readiness.
     pub ready_timeout_s: u64,
     /// Grace period between SIGTERM and SIGKILL at shutdown.
@@ -148,8 +149,7 @@ impl Default for SupervisorConfig {
             restart_backoff_initial_ms: 100,
             restart_backoff_max_ms: 5000,
             restart_backoff_reset_s: 10,
-            restart_limit: 30,
-            restart_window_s: 60,
+            restart_limit: 10,
             ready_timeout_s: 60,
             stop_timeout_ms: 3000,
             watch_period_ms: 20,

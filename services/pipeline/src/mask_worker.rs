@@ -197,11 +197,14 @@ impl MaskModel for NoObjects {
     }
 }
 
+/// Builds one backend of a worker from the service context.
+pub type ModelFactory = dyn Fn(&ServiceContext) -> Result<Box<dyn MaskModel>>;
+
 /// Builds the model a worker's configuration names; unknown names are input
 /// errors that list the known ones.
 pub fn model_from_config(
     ctx: &ServiceContext,
-    known: &[(&str, &dyn Fn(&ServiceContext) -> Result<Box<dyn MaskModel>>)],
+    known: &[(&str, &ModelFactory)],
 ) -> Result<Box<dyn MaskModel>> {
     let section = ctx.kind.as_str();
     let cfg = ctx.config.service(ctx.kind);

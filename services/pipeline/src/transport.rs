@@ -477,9 +477,7 @@ pub fn cleanup_dead_nodes(names: &RunNames) -> Result<CleanupReport> {
     Node::<Svc>::list(&config, |state| {
         match state {
             NodeState::Dead(view) => {
-                if view.try_remove_stale_resources().is_ok() {
-                    report.dead_nodes_removed += 1;
-                }
+                report.dead_nodes_removed += view.try_remove_stale_resources().is_ok() as usize;
             }
             NodeState::Alive(_) => report.alive_nodes += 1,
             _ => {}

@@ -20,8 +20,8 @@ use pipeline::transport::{attach, qos, wait, waitset, Svc, Wake};
 use pipeline::views::{FrameView, MasksView};
 use shared_types::names::Topic;
 use shared_types::{
-    frame_flags, mask_flags, FrameHeader, MasksHeader, Route, RouteKind, ServiceKind, Track,
-    TrackState,
+    frame_flags, mask_flags, FrameHeader, MasksHeader, Route, RouteKind, ServiceKind, StageStamps,
+    Track, TrackState,
 };
 use slam::scripted::ScriptedTracker;
 use slam::tracker::{TrackInput, Tracker};
@@ -117,12 +117,6 @@ fn run(ctx: ServiceContext) -> Result<()> {
                 }
                 continue;
             }
-            if h.has(frame_flags::BAD_INPUT) {
-                let t = skipped_track(&h);
-                tracks.send(t)?;
-                st.last = Some(t);
-                continue;
-            }
             st.frames.retain(|f| f.sample.user_header().seq != h.seq);
             st.frames.push_back(HeldFrame {
                 sample,
@@ -182,6 +176,14 @@ fn track_next_ready(
     let masks_sample = st.masks.iter().find(|m| m.user_header().seq == seq);
 
     let mut stamps = route.stamps;
+    if header.has(frame_flags::BAD_INPUT) {
+        // Answered only once routed, so the supervisor has the reason on file.
+        let track = skipped_track(header, stamps);
+        st.last = Some(track);
+        st.frames.retain(|f| f.sample.user_header().seq > seq);
+        st.routes.retain(|&s, _| s > seq);
+        return Ok(Some(track));
+    }
     let masks_view = match masks_sample {
         Some(m) if RouteKind::from_u32(route.kind) != Some(RouteKind::Skip) => {
             stamps = m.user_header().stamps;
@@ -219,8 +221,7 @@ fn track_next_ready(
     Ok(Some(track))
 }
 
-fn skipped_track(h: &FrameHeader) -> Track {
-    let mut stamps = h.stamps;
+fn skipped_track(h: &FrameHeader, mut stamps: StageStamps) -> Track {
     stamps.track_done_ns = now_ns();
     Track {
         seq: h.seq,

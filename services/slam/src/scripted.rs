@@ -33,7 +33,7 @@ impl ScriptedTracker {
 
     /// The scripted keyframe flag published with frame `seq`.
     pub fn wants_keyframe_after(&self, seq: u64) -> bool {
-        (seq + 1) % self.keyframe_every == 0
+        (seq + 1).is_multiple_of(self.keyframe_every)
     }
 }
 

@@ -1,33 +1,33 @@
 //! Child processes: spawning, exit classification and the restart policy.
 
-use std::collections::VecDeque;
 use std::os::unix::process::{CommandExt, ExitStatusExt};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 use pipeline::config::{PipelineConfig, SupervisorConfig};
 use pipeline::runtime::exit_code;
 use shared_types::ServiceKind;
 
-/// Exponential backoff with a restart limit in a sliding window.
+/// Exponential backoff, and crash-loop detection: a service that dies
+/// `limit` times in a row, each time before staying up `reset_after`, is
+/// given up on. Staying up that long resets both the delay and the count.
 #[derive(Debug, Clone)]
 pub struct RestartPolicy {
     initial: Duration,
     max: Duration,
     reset_after: Duration,
-    limit: usize,
-    window: Duration,
+    limit: u32,
     next_delay: Duration,
-    recent: VecDeque<Instant>,
+    consecutive: u32,
 }
 
 /// What to do after a service died.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum RestartDecision {
     RestartAfter(Duration),
-    GiveUp { restarts_in_window: usize },
+    GiveUp { deaths_in_a_row: u32 },
 }
 
 impl RestartPolicy {
@@ -36,31 +36,24 @@ impl RestartPolicy {
             initial: Duration::from_millis(cfg.restart_backoff_initial_ms),
             max: Duration::from_millis(cfg.restart_backoff_max_ms),
             reset_after: Duration::from_secs(cfg.restart_backoff_reset_s),
-            limit: cfg.restart_limit as usize,
-            window: Duration::from_secs(cfg.restart_window_s),
+            limit: cfg.restart_limit,
             next_delay: Duration::from_millis(cfg.restart_backoff_initial_ms),
-            recent: VecDeque::new(),
+            consecutive: 0,
         }
     }
 
-    /// A service that was up for `uptime` died at `now`.
-    pub fn on_death(&mut self, now: Instant, uptime: Duration) -> RestartDecision {
+    /// A service that was up for `uptime` died.
+    pub fn on_death(&mut self, uptime: Duration) -> RestartDecision {
         if uptime >= self.reset_after {
             self.next_delay = self.initial;
+            self.consecutive = 0;
         }
-        while self
-            .recent
-            .front()
-            .is_some_and(|t| now.duration_since(*t) > self.window)
-        {
-            self.recent.pop_front();
-        }
-        if self.recent.len() >= self.limit {
+        self.consecutive += 1;
+        if self.consecutive > self.limit {
             return RestartDecision::GiveUp {
-                restarts_in_window: self.recent.len(),
+                deaths_in_a_row: self.consecutive,
             };
         }
-        self.recent.push_back(now);
         let delay = self.next_delay;
         self.next_delay = (self.next_delay * 2).min(self.max);
         RestartDecision::RestartAfter(delay)
@@ -168,7 +161,6 @@ mod tests {
             restart_backoff_max_ms: 500,
             restart_backoff_reset_s: 10,
             restart_limit: 4,
-            restart_window_s: 60,
             ..Default::default()
         })
     }
@@ -176,35 +168,33 @@ mod tests {
     #[test]
     fn backoff_doubles_up_to_the_cap() {
         let mut p = policy();
-        let t = Instant::now();
         let delays: Vec<_> = (0..4)
-            .map(|i| p.on_death(t + Duration::from_millis(i), Duration::from_millis(5)))
+            .map(|_| p.on_death(Duration::from_millis(5)))
             .collect();
         let ms = |d: u64| RestartDecision::RestartAfter(Duration::from_millis(d));
         assert_eq!(delays, vec![ms(100), ms(200), ms(400), ms(500)]);
     }
 
     #[test]
-    fn gives_up_after_the_limit_within_the_window_and_recovers_later() {
+    fn gives_up_on_a_crash_loop_but_not_on_a_service_that_stays_up() {
         let mut p = policy();
-        let t = Instant::now();
-        for i in 0..4 {
+        for _ in 0..4 {
             assert!(matches!(
-                p.on_death(t + Duration::from_secs(i), Duration::ZERO),
+                p.on_death(Duration::ZERO),
                 RestartDecision::RestartAfter(_)
             ));
         }
         assert_eq!(
-            p.on_death(t + Duration::from_secs(5), Duration::ZERO),
-            RestartDecision::GiveUp {
-                restarts_in_window: 4
-            }
+            p.on_death(Duration::ZERO),
+            RestartDecision::GiveUp { deaths_in_a_row: 5 }
         );
-        // Long after, the window is empty again and a long uptime resets the backoff.
-        assert_eq!(
-            p.on_death(t + Duration::from_secs(200), Duration::from_secs(100)),
-            RestartDecision::RestartAfter(Duration::from_millis(100))
-        );
+        // A service that was up long enough starts over.
+        let mut p = policy();
+        for _ in 0..20 {
+            assert!(
+                matches!(p.on_death(Duration::from_secs(11)), RestartDecision::RestartAfter(d) if d == Duration::from_millis(100))
+            );
+        }
     }
 
     #[test]

@@ -387,7 +387,7 @@ impl Supervisor {
                 );
                 continue;
             }
-            match svc.policy.on_death(now, now.duration_since(svc.started)) {
+            match svc.policy.on_death(now.duration_since(svc.started)) {
                 RestartDecision::RestartAfter(delay) => {
                     tracing::warn!(
                         pid,
@@ -406,13 +406,12 @@ impl Supervisor {
                         ),
                     )?;
                 }
-                RestartDecision::GiveUp { restarts_in_window } => {
+                RestartDecision::GiveUp { deaths_in_a_row } => {
                     let msg = svc.last_error.lock().map(|s| s.clone()).unwrap_or_default();
                     let reason = format!(
-                        "{} died {} times within {} s (last: {how}); giving up on it. {msg}",
+                        "{} died {deaths_in_a_row} times in a row, each within {} s of starting (last: {how}); giving up on it. Its last error: {msg}",
                         kind.as_str(),
-                        restarts_in_window + 1,
-                        self.config.supervisor.restart_window_s
+                        self.config.supervisor.restart_backoff_reset_s
                     );
                     tracing::error!("{reason}");
                     svc.state = SvcState::Failed { reason };

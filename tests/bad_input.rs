@@ -1,0 +1,247 @@
+//! Bad input: each case gives a clear error naming the thing and the
+//! problem, nothing panics, the other processes keep going, and what was
+//! written so far stays intact.
+
+mod common;
+use common::*;
+
+use std::path::Path;
+
+fn id(tag: &str) -> String {
+    format!("{tag}{}", std::process::id())
+}
+
+const SCRIPTED: &str = "[services.slam]\nbackend = \"scripted\"\n";
+
+/// Runs a 12-frame copy of the shared sequence after `damage`, expecting the
+/// run to complete with frame 5 skipped for the reason `expect` names.
+fn run_with_damaged_frame(tag: &str, damage: impl FnOnce(&Path), expect: &[&str]) {
+    let dir = scratch(tag);
+    let tum = small_tum(&dir, 12);
+    damage(&tum);
+    let config = write_config(&dir, SCRIPTED);
+    let run = run(&tum, &config, &dir.join("runs"), &id(tag), &[]);
+    let stderr = run.stderr();
+    assert!(
+        run.success(),
+        "one bad frame must not stop the run:\n{stderr}"
+    );
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    let rows = read_rows(&run.run_dir);
+    assert_eq!(rows.len(), 12, "every frame has a row");
+    for (i, r) in rows.iter().enumerate() {
+        if i == 5 {
+            assert_eq!(r["state"], "skipped", "{r:?}");
+            assert_eq!(r["route"], "skip");
+            for e in expect {
+                assert!(r["note"].contains(e), "note '{}' lacks '{e}'", r["note"]);
+                assert!(stderr.contains(e), "log lacks '{e}':\n{stderr}");
+            }
+        } else {
+            assert_eq!(r["state"], "ok", "frame {i}: {r:?}");
+        }
+    }
+    assert_no_shm_left(&run.run_id);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn corrupt_png_is_skipped_and_named() {
+    run_with_damaged_frame(
+        "corrupt",
+        |tum| std::fs::write(rgb_file(tum, 5), b"\x89PNG\r\n\x1a\nthis is no image data").unwrap(),
+        &["corrupt or truncated PNG"],
+    );
+}
+
+#[test]
+fn truncated_png_is_skipped_and_named() {
+    let mut name = String::new();
+    run_with_damaged_frame(
+        "truncated",
+        |tum| {
+            let f = rgb_file(tum, 5);
+            name = f.file_name().unwrap().to_string_lossy().into_owned();
+            let bytes = std::fs::read(&f).unwrap();
+            std::fs::write(&f, &bytes[..bytes.len() / 3]).unwrap();
+        },
+        &["corrupt or truncated PNG", "rgb/"],
+    );
+}
+
+#[test]
+fn missing_depth_file_is_skipped_and_named() {
+    run_with_damaged_frame(
+        "nodepth",
+        |tum| std::fs::remove_file(depth_file(tum, 5)).unwrap(),
+        &["depth/", "cannot open"],
+    );
+}
+
+#[test]
+fn frame_of_the_wrong_size_is_skipped_and_named() {
+    run_with_damaged_frame(
+        "wrongsize",
+        |tum| {
+            let small = image::RgbImage::from_pixel(320, 240, image::Rgb([90, 120, 150]));
+            small.save(rgb_file(tum, 5)).unwrap();
+        },
+        &["frame is 320x240", "expected 640x480"],
+    );
+}
+
+/// Runs and expects a failure whose message contains every `expect`.
+fn expect_failure(
+    dataset: &Path,
+    config: &Path,
+    out: &Path,
+    tag: &str,
+    expect: &[&str],
+) -> RunResult {
+    let run = run(dataset, config, out, &id(tag), &[]);
+    let stderr = run.stderr();
+    assert!(!run.success(), "must fail:\n{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    for e in expect {
+        assert!(stderr.contains(e), "error lacks '{e}':\n{stderr}");
+    }
+    run
+}
+
+#[test]
+fn malformed_rgb_list_names_file_and_line() {
+    let dir = scratch("malformed");
+    let tum = small_tum(&dir, 6);
+    let list = tum.join("rgb.txt");
+    let mut text = std::fs::read_to_string(&list).unwrap();
+    text.push_str("this-is-not-a-line\n");
+    std::fs::write(&list, text).unwrap();
+    let config = write_config(&dir, SCRIPTED);
+    let run = expect_failure(
+        &tum,
+        &config,
+        &dir.join("runs"),
+        "malformed",
+        &["rgb.txt line 8", "camera-reader"],
+    );
+    // The other services were stopped in order and nothing is left over.
+    assert_no_shm_left(&run.run_id);
+    assert!(processes_mentioning(&run.run_id).is_empty());
+    // The run folder records what happened.
+    let status: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.run_dir.join("status.json")).unwrap())
+            .unwrap();
+    assert_eq!(status["state"], "failed");
+    assert!(status["error"].as_str().unwrap().contains("rgb.txt line 8"));
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn unsorted_rgb_list_names_both_lines() {
+    let dir = scratch("unsorted");
+    let tum = small_tum(&dir, 6);
+    let list = tum.join("rgb.txt");
+    let text = std::fs::read_to_string(&list).unwrap();
+    let mut lines: Vec<&str> = text.lines().collect();
+    lines.swap(3, 4);
+    std::fs::write(&list, lines.join("\n") + "\n").unwrap();
+    let config = write_config(&dir, SCRIPTED);
+    expect_failure(
+        &tum,
+        &config,
+        &dir.join("runs"),
+        "unsorted",
+        &["rgb.txt line 5", "line 4", "sorted"],
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn missing_dataset_folder_is_named() {
+    let dir = scratch("nodata");
+    let config = write_config(&dir, SCRIPTED);
+    expect_failure(
+        Path::new("/no/such/dataset"),
+        &config,
+        &dir.join("runs"),
+        "nodata",
+        &["dataset folder /no/such/dataset does not exist"],
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn malformed_config_names_file_and_key() {
+    let dir = scratch("badconfig");
+    let config = write_config(
+        &dir,
+        "[run]\nmode = \"lockstep\"\n[services.slam]\nkeyframe_evry = 3\n",
+    );
+    expect_failure(
+        &shared_tum(),
+        &config,
+        &dir.join("runs"),
+        "badconfig",
+        &[
+            config.to_str().unwrap(),
+            "services.slam",
+            "keyframe_evry",
+            "line 4",
+        ],
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn worker_that_exits_at_start_is_given_up_on_and_the_run_goes_on_unmasked() {
+    let dir = scratch("deadworker");
+    let tum = small_tum(&dir, 10);
+    let config = write_config(
+        &dir,
+        "[services.slam]\nbackend = \"scripted\"\n\
+         [services.segmenter]\ncommand = [\"/bin/sh\", \"-c\", \"echo 'ERROR segmenter: model file missing' >&2; exit 3\", \"sh\"]\n\
+         [supervisor]\nrestart_backoff_initial_ms = 10\nrestart_backoff_max_ms = 40\nrestart_limit = 3\n",
+    );
+    let run = run(&tum, &config, &dir.join("runs"), &id("deadworker"), &[]);
+    let stderr = run.stderr();
+    assert!(
+        run.success(),
+        "a dead segmenter must not stop the run:\n{stderr}"
+    );
+    assert!(stderr.contains("segmenter died 4 times"), "{stderr}");
+    assert!(stderr.contains("giving up on it"), "{stderr}");
+    assert!(
+        stderr.contains("model file missing"),
+        "the service's own error is quoted:\n{stderr}"
+    );
+    let rows = read_rows(&run.run_dir);
+    assert_eq!(rows.len(), 10);
+    for r in &rows {
+        assert_eq!(r["state"], "ok");
+        assert_eq!(r["route"], "skip");
+        assert!(r["note"].contains("unmasked"), "{r:?}");
+    }
+    assert_no_shm_left(&run.run_id);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn slam_that_exits_at_start_fails_the_run_with_its_name() {
+    let dir = scratch("deadslam");
+    let tum = small_tum(&dir, 5);
+    let config = write_config(
+        &dir,
+        "[services.slam]\ncommand = [\"/bin/false\"]\n\
+         [supervisor]\nrestart_backoff_initial_ms = 10\nrestart_backoff_max_ms = 40\nrestart_limit = 2\n",
+    );
+    let run = expect_failure(
+        &tum,
+        &config,
+        &dir.join("runs"),
+        "deadslam",
+        &["slam died 3 times", "exit code 1"],
+    );
+    assert_no_shm_left(&run.run_id);
+    assert!(processes_mentioning(&run.run_id).is_empty());
+    std::fs::remove_dir_all(&dir).ok();
+}

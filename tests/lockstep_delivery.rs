@@ -155,3 +155,103 @@ fn realtime_mode_counts_every_frame_as_tracked_or_dropped() {
     assert_no_shm_left(&run.run_id);
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn sigint_and_sigterm_stop_the_run_cleanly_and_keep_what_was_done() {
+    for (sig, tag) in [(libc::SIGINT, "int"), (libc::SIGTERM, "term")] {
+        let dir = scratch(&format!("signal-{tag}"));
+        let run_id = format!("sig{tag}{}", std::process::id());
+        let config = write_config(
+            &dir,
+            "[services.slam]\nbackend = \"scripted\"\nwork_ms = 20\n",
+        );
+        let child = std::process::Command::new(dynslam())
+            .arg("run")
+            .arg(shared_tum())
+            .arg("--config")
+            .arg(&config)
+            .arg("--output-dir")
+            .arg(dir.join("runs"))
+            .args(["--run-id", &run_id])
+            .stderr(std::process::Stdio::null())
+            .stdout(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let run_dir = dir.join("runs").join(&run_id);
+        // Let some frames through, then signal the supervisor only.
+        let t = std::time::Instant::now();
+        while read_rows_if_any(&run_dir) < 20 {
+            assert!(
+                t.elapsed() < std::time::Duration::from_secs(30),
+                "run did not start"
+            );
+            std::thread::sleep(std::time::Duration::from_millis(10));
+        }
+        unsafe { libc::kill(child.id() as i32, sig) };
+        let out = child.wait_with_output().unwrap();
+        assert_eq!(
+            out.status.code(),
+            Some(130),
+            "interrupted runs exit with 130"
+        );
+        assert_eq!(
+            String::from_utf8_lossy(&out.stdout).trim(),
+            run_dir.display().to_string()
+        );
+        let rows = read_rows(&run_dir);
+        assert!(rows.len() >= 20 && rows.len() < 300, "{} rows", rows.len());
+        for (i, r) in rows.iter().enumerate() {
+            assert_eq!(r["seq"], i.to_string());
+        }
+        let traj = std::fs::read_to_string(run_dir.join("trajectory.txt")).unwrap();
+        assert_eq!(
+            traj.lines().filter(|l| !l.starts_with('#')).count(),
+            rows.len()
+        );
+        let status: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(run_dir.join("status.json")).unwrap())
+                .unwrap();
+        assert_eq!(status["state"], "interrupted");
+        assert_no_shm_left(&run_id);
+        assert!(
+            processes_mentioning(&run_id).is_empty(),
+            "services outlived the supervisor"
+        );
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
+
+fn read_rows_if_any(run_dir: &std::path::Path) -> usize {
+    std::fs::read_to_string(run_dir.join("frames.csv"))
+        .map(|t| t.lines().count().saturating_sub(1))
+        .unwrap_or(0)
+}
+
+#[test]
+fn image_folder_source_plays_without_depth() {
+    let dir = scratch("images");
+    let images = dir.join("images");
+    std::fs::create_dir_all(&images).unwrap();
+    let tum = shared_tum();
+    for i in 0..8 {
+        std::fs::copy(rgb_file(&tum, i), images.join(format!("frame{i:03}.png"))).unwrap();
+    }
+    let config = write_config(
+        &dir,
+        "[source]\nkind = \"images\"\n[services.slam]\nbackend = \"scripted\"\n",
+    );
+    let run = run(
+        &images,
+        &config,
+        &dir.join("runs"),
+        &format!("img{}", std::process::id()),
+        &[],
+    );
+    assert!(run.success(), "{}", run.stderr());
+    let rows = read_rows(&run.run_dir);
+    assert_eq!(rows.len(), 8);
+    assert!(rows.iter().all(|r| r["state"] == "ok"));
+    assert_eq!(rows[1]["timestamp"], format!("{:.6}", 1.0 / 30.0));
+    assert_no_shm_left(&run.run_id);
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -2,5 +2,7 @@
 //! get poses. The SLAM service (`main.rs`) is a thin shell around a
 //! [`tracker::Tracker`].
 
+pub mod eval;
 pub mod scripted;
 pub mod tracker;
+pub mod trajectory;

@@ -56,6 +56,35 @@ enum Command {
         /// The run folder to continue.
         run_dir: PathBuf,
     },
+    /// Trajectory accuracy: ATE and RPE of an estimate against ground truth
+    /// (TUM format), as evo computes them.
+    Eval {
+        /// Ground-truth trajectory (TUM: timestamp tx ty tz qx qy qz qw).
+        #[arg(long)]
+        gt: PathBuf,
+        /// Estimated trajectory (TUM format).
+        #[arg(long)]
+        est: PathBuf,
+        /// Alignment before ATE: se3 (RGB-D), sim3 (monocular) or none.
+        #[arg(long, value_enum, default_value = "se3")]
+        align: Align,
+        /// Association tolerance in seconds.
+        #[arg(long, default_value_t = 0.02)]
+        max_diff: f64,
+        /// Print the summary as JSON on stdout.
+        #[arg(long)]
+        json: bool,
+        /// Also write the summary to this JSON file.
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+}
+
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum Align {
+    None,
+    Se3,
+    Sim3,
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -67,6 +96,23 @@ enum Mode {
 fn main() -> ExitCode {
     init_logging();
     let cli = Cli::parse();
+    if let Command::Eval {
+        gt,
+        est,
+        align,
+        max_diff,
+        json,
+        out,
+    } = &cli.command
+    {
+        return match eval(gt, est, *align, *max_diff, *json, out.as_deref()) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                ExitCode::FAILURE
+            }
+        };
+    }
     match dispatch(cli.command) {
         Ok(summary) => {
             eprintln!("{}", summary.latency_table);
@@ -150,5 +196,59 @@ fn dispatch(command: Command) -> Result<RunSummary> {
             execute(&dir)
         }
         Command::Resume { run_dir } => execute(&run_dir),
+        Command::Eval { .. } => unreachable!("handled in main"),
     }
+}
+
+fn eval(
+    gt: &std::path::Path,
+    est: &std::path::Path,
+    align: Align,
+    max_diff: f64,
+    json: bool,
+    out: Option<&std::path::Path>,
+) -> Result<()> {
+    use slam::eval::{evaluate_files, Alignment, EvalOptions};
+    if !(max_diff.is_finite() && max_diff > 0.0) {
+        anyhow::bail!("--max-diff {max_diff} must be a positive number of seconds");
+    }
+    let opts = EvalOptions {
+        alignment: match align {
+            Align::None => Alignment::None,
+            Align::Se3 => Alignment::Se3,
+            Align::Sim3 => Alignment::Sim3,
+        },
+        max_diff,
+        ..Default::default()
+    };
+    let s = evaluate_files(gt, est, opts)?;
+    let text = serde_json::to_string_pretty(&s)?;
+    if let Some(path) = out {
+        std::fs::write(path, &text).with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    if json {
+        println!("{text}");
+    } else {
+        println!(
+            "pairs           {} (of {} estimated, {} ground-truth poses)",
+            s.pairs, s.est_poses, s.gt_poses
+        );
+        println!("alignment       {:?}, scale {:.4}", s.alignment, s.scale);
+        println!(
+            "ATE  rmse {:.4} m  mean {:.4}  median {:.4}  max {:.4}",
+            s.ate_rmse_m, s.ate_mean_m, s.ate_median_m, s.ate_max_m
+        );
+        println!(
+            "RPE/frame  trans rmse {:.4} m  rot rmse {:.3} deg",
+            s.rpe_trans_rmse_m, s.rpe_rot_rmse_deg
+        );
+        println!(
+            "RPE/{:.0}s     trans rmse {:.4} m  rot rmse {:.3} deg ({} pairs)",
+            s.rpe_interval_s,
+            s.rpe_interval_trans_rmse_m,
+            s.rpe_interval_rot_rmse_deg,
+            s.rpe_interval_pairs
+        );
+    }
+    Ok(())
 }

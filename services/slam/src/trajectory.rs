@@ -1,0 +1,139 @@
+//! Timestamped pose trajectories in the TUM format
+//! (`timestamp tx ty tz qx qy qz qw`, world-from-camera).
+
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
+
+/// A trajectory: poses with their timestamps, in file order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Trajectory {
+    pub stamps: Vec<f64>,
+    pub poses: Vec<Isometry3<f64>>,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum TrajectoryError {
+    #[error("{path}: cannot read: {message}")]
+    Unreadable { path: PathBuf, message: String },
+    #[error("{path} line {line}: {message}")]
+    BadLine {
+        path: PathBuf,
+        line: usize,
+        message: String,
+    },
+    #[error("{path}: contains no poses")]
+    Empty { path: PathBuf },
+}
+
+impl Trajectory {
+    pub fn len(&self) -> usize {
+        self.poses.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.poses.is_empty()
+    }
+
+    /// Parses TUM text; `path` only names the source in errors. Comment
+    /// lines start with '#'; commas are accepted as separators too.
+    pub fn parse_tum(text: &str, path: &Path) -> Result<Self, TrajectoryError> {
+        let mut stamps = Vec::new();
+        let mut poses = Vec::new();
+        for (i, raw) in text.lines().enumerate() {
+            let line = raw.trim();
+            if line.is_empty() || line.starts_with('#') {
+                continue;
+            }
+            let bad = |message: String| TrajectoryError::BadLine {
+                path: path.to_path_buf(),
+                line: i + 1,
+                message,
+            };
+            let fields: Vec<&str> = line
+                .split(|c: char| c.is_whitespace() || c == ',')
+                .filter(|f| !f.is_empty())
+                .collect();
+            if fields.len() != 8 {
+                return Err(bad(format!(
+                    "expected 8 values 'timestamp tx ty tz qx qy qz qw', found {}",
+                    fields.len()
+                )));
+            }
+            let mut v = [0.0f64; 8];
+            for (k, f) in fields.iter().enumerate() {
+                v[k] = f
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|x| x.is_finite())
+                    .ok_or_else(|| bad(format!("'{f}' is not a finite number")))?;
+            }
+            let q = Quaternion::new(v[7], v[4], v[5], v[6]);
+            if q.norm() < 1e-6 {
+                return Err(bad("quaternion has zero length".into()));
+            }
+            stamps.push(v[0]);
+            poses.push(Isometry3::from_parts(
+                Translation3::new(v[1], v[2], v[3]),
+                UnitQuaternion::from_quaternion(q),
+            ));
+        }
+        if poses.is_empty() {
+            return Err(TrajectoryError::Empty {
+                path: path.to_path_buf(),
+            });
+        }
+        Ok(Self { stamps, poses })
+    }
+
+    pub fn load_tum(path: &Path) -> Result<Self, TrajectoryError> {
+        let text = std::fs::read_to_string(path).map_err(|e| TrajectoryError::Unreadable {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+        Self::parse_tum(&text, path)
+    }
+
+    /// The trajectory keeping only the poses at `ids`.
+    pub fn select(&self, ids: &[usize]) -> Self {
+        Self {
+            stamps: ids.iter().map(|&i| self.stamps[i]).collect(),
+            poses: ids.iter().map(|&i| self.poses[i]).collect(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_tum_lines_and_comments() {
+        let t = Trajectory::parse_tum(
+            "# ground truth\n1.0 1 2 3 0 0 0 1\n2.0,4,5,6,0,0,0.7071068,0.7071068\n",
+            Path::new("gt.txt"),
+        )
+        .unwrap();
+        assert_eq!(t.len(), 2);
+        assert_eq!(t.poses[0].translation.vector.z, 3.0);
+        let angle = t.poses[1].rotation.angle();
+        assert!((angle - std::f64::consts::FRAC_PI_2).abs() < 1e-6);
+    }
+
+    #[test]
+    fn errors_name_file_and_line() {
+        let err = Trajectory::parse_tum("1 2 3\n", Path::new("est.txt")).unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "est.txt line 1: expected 8 values 'timestamp tx ty tz qx qy qz qw', found 3"
+        );
+        let err = Trajectory::parse_tum("# x\n1 0 0 0 0 0 0 nan\n", Path::new("e")).unwrap_err();
+        assert!(err.to_string().contains("line 2"), "{err}");
+        let err = Trajectory::parse_tum("1 0 0 0 0 0 0 0\n", Path::new("e")).unwrap_err();
+        assert!(err.to_string().contains("zero length"), "{err}");
+        assert!(matches!(
+            Trajectory::parse_tum("# none\n", Path::new("e")),
+            Err(TrajectoryError::Empty { .. })
+        ));
+    }
+}

@@ -4,12 +4,16 @@
 //! run. Latency is from "the frame is complete in the sender's memory" to
 //! "the receiver can read all of it"; both sides stamp CLOCK_MONOTONIC.
 //!
-//! `transport-bench [--frames N] [--out FILE]` prints both, the ratio, and
-//! writes them as JSON.
+//! iceoryx2 is measured twice: with the receiver woken by an iceoryx2 event
+//! through a WaitSet (what every pipeline process does) and with a receiver
+//! that polls (the hand-off alone, without the cost of waking a sleeping
+//! process). `transport-bench [--frames N] [--out FILE]` prints all three,
+//! the ratios, and writes them as JSON; the `iceoryx2_*` keys are the
+//! WaitSet figures.
 
 use std::io::{Read, Write};
 use std::os::unix::net::{UnixListener, UnixStream};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
@@ -44,13 +48,16 @@ struct Args {
     endpoint: Option<String>,
 }
 
+/// Frames at the start of each series that warm caches and connections.
+const WARMUP: usize = 50;
+
 fn main() -> Result<()> {
     let args = Args::parse();
+    let endpoint = || args.endpoint.as_deref().context("--endpoint");
     match args.receive.as_deref() {
-        Some("iceoryx2") => {
-            receive_iceoryx2(args.endpoint.as_deref().context("--endpoint")?, args.frames)
-        }
-        Some("uds") => receive_uds(args.endpoint.as_deref().context("--endpoint")?, args.frames),
+        Some("iceoryx2") => receive_iceoryx2(endpoint()?, args.frames, false),
+        Some("iceoryx2-poll") => receive_iceoryx2(endpoint()?, args.frames, true),
+        Some("uds") => receive_uds(endpoint()?, args.frames),
         Some(other) => bail!("unknown receiver {other}"),
         None => drive(&args),
     }
@@ -61,43 +68,8 @@ fn drive(args: &Args) -> Result<()> {
     let run_id = format!("bench-{}", std::process::id());
     let names = RunNames::new(&run_id).map_err(anyhow::Error::msg)?;
 
-    // iceoryx2: the receiver subscribes, then says "ready" on stdout.
-    let iox = {
-        let transport = Transport::open(&names, "bench-sender")?;
-        let sender = transport.slice_sender::<FrameHeader>(Topic::Frames, FRAME_BYTES)?;
-        let mut child = Command::new(&exe)
-            .args([
-                "--receive",
-                "iceoryx2",
-                "--endpoint",
-                &run_id,
-                "--frames",
-                &args.frames.to_string(),
-            ])
-            .stdout(Stdio::piped())
-            .spawn()?;
-        let mut out = child.stdout.take().context("receiver stdout")?;
-        wait_ready(&mut out)?;
-        for seq in 0..args.frames as u64 {
-            let mut sample = sender.loan(FRAME_BYTES)?;
-            // The frame is produced into shared memory (not timed).
-            let payload = sample.payload_mut();
-            payload[0] = seq as u8;
-            payload[FRAME_BYTES - 1] = seq as u8;
-            let header = sample.user_header_mut();
-            header.seq = seq;
-            header.width = WIDTH as u32;
-            header.height = HEIGHT as u32;
-            header.stamps.published_ns = now_ns();
-            sender.publish(sample)?;
-            std::thread::sleep(PERIOD);
-        }
-        let figures = collect(out, &mut child)?;
-        drop(sender);
-        drop(transport);
-        remove_run_files(&names)?;
-        figures
-    };
+    let iox = measure_iceoryx2(&exe, &names, "iceoryx2", args.frames)?;
+    let iox_poll = measure_iceoryx2(&exe, &names, "iceoryx2-poll", args.frames)?;
 
     // Unix domain socket: the whole frame is copied through the kernel.
     let uds = {
@@ -119,7 +91,7 @@ fn drive(args: &Args) -> Result<()> {
         let mut out = child.stdout.take().context("receiver stdout")?;
         wait_ready(&mut out)?;
         let mut frame = vec![0u8; 8 + FRAME_BYTES];
-        for seq in 0..args.frames as u64 {
+        for seq in 0..(args.frames + WARMUP) as u64 {
             frame[8] = seq as u8;
             frame[8 + FRAME_BYTES - 1] = seq as u8;
             frame[..8].copy_from_slice(&now_ns().to_ne_bytes());
@@ -133,18 +105,16 @@ fn drive(args: &Args) -> Result<()> {
 
     let speedup_p50 = uds.0 / iox.0.max(1e-9);
     println!("one-way latency of a {WIDTH}x{HEIGHT} RGB + u16 depth frame ({FRAME_BYTES} bytes), {} frames each", args.frames);
-    println!("{:<22} {:>10} {:>10}", "transport", "p50 us", "p99 us");
+    println!("{:<40} {:>9} {:>9}", "transport", "p50 us", "p99 us");
+    let line = |name: &str, f: (f64, f64)| println!("{name:<40} {:>9.1} {:>9.1}", f.0, f.1);
+    line("iceoryx2 zero copy, WaitSet wake-up", iox);
+    line("iceoryx2 zero copy, polling receiver", iox_poll);
+    line("unix socket, copy (baseline)", uds);
     println!(
-        "{:<22} {:>10.1} {:>10.1}",
-        "iceoryx2 (zero copy)", iox.0, iox.1
-    );
-    println!(
-        "{:<22} {:>10.1} {:>10.1}",
-        "unix socket (copy)", uds.0, uds.1
-    );
-    println!(
-        "speedup p50: {speedup_p50:.1}x, p99: {:.1}x",
-        uds.1 / iox.1.max(1e-9)
+        "speedup vs baseline: WaitSet p50 {speedup_p50:.1}x p99 {:.1}x; polling p50 {:.1}x p99 {:.1}x",
+        uds.1 / iox.1.max(1e-9),
+        uds.0 / iox_poll.0.max(1e-9),
+        uds.1 / iox_poll.1.max(1e-9)
     );
     let json = json_object(&[
         ("iceoryx2_p50_us", iox.0),
@@ -152,6 +122,9 @@ fn drive(args: &Args) -> Result<()> {
         ("baseline_p50_us", uds.0),
         ("baseline_p99_us", uds.1),
         ("speedup_p50", speedup_p50),
+        ("iceoryx2_poll_p50_us", iox_poll.0),
+        ("iceoryx2_poll_p99_us", iox_poll.1),
+        ("speedup_poll_p50", uds.0 / iox_poll.0.max(1e-9)),
         ("frame_bytes", FRAME_BYTES as f64),
         ("frames", args.frames as f64),
     ]);
@@ -162,6 +135,44 @@ fn drive(args: &Args) -> Result<()> {
         .with_context(|| format!("cannot write {}", args.out.display()))?;
     println!("wrote {}", args.out.display());
     Ok(())
+}
+
+/// Sends `frames` frames through iceoryx2 to a receiver process of `kind`.
+fn measure_iceoryx2(exe: &Path, names: &RunNames, kind: &str, frames: usize) -> Result<(f64, f64)> {
+    let transport = Transport::open(names, "bench-sender")?;
+    let sender = transport.slice_sender::<FrameHeader>(Topic::Frames, FRAME_BYTES)?;
+    let mut child = Command::new(exe)
+        .args([
+            "--receive",
+            kind,
+            "--endpoint",
+            names.run_id(),
+            "--frames",
+            &frames.to_string(),
+        ])
+        .stdout(Stdio::piped())
+        .spawn()?;
+    let mut out = child.stdout.take().context("receiver stdout")?;
+    wait_ready(&mut out)?;
+    for seq in 0..(frames + WARMUP) as u64 {
+        let mut sample = sender.loan(FRAME_BYTES)?;
+        // The frame is produced into shared memory (not timed).
+        let payload = sample.payload_mut();
+        payload[0] = seq as u8;
+        payload[FRAME_BYTES - 1] = seq as u8;
+        let header = sample.user_header_mut();
+        header.seq = seq;
+        header.width = WIDTH as u32;
+        header.height = HEIGHT as u32;
+        header.stamps.published_ns = now_ns();
+        sender.publish(sample)?;
+        std::thread::sleep(PERIOD);
+    }
+    let figures = collect(out, &mut child)?;
+    drop(sender);
+    drop(transport);
+    remove_run_files(names)?;
+    Ok(figures)
 }
 
 fn json_object(pairs: &[(&str, f64)]) -> String {
@@ -197,7 +208,8 @@ fn collect(mut out: impl Read, child: &mut std::process::Child) -> Result<(f64, 
     Ok((v[0], v[1]))
 }
 
-fn report(mut lat_us: Vec<f64>) {
+fn report(lat_us: Vec<f64>) {
+    let mut lat_us: Vec<f64> = lat_us.into_iter().skip(WARMUP).collect();
     lat_us.sort_by(f64::total_cmp);
     println!(
         "{} {}",
@@ -206,7 +218,7 @@ fn report(mut lat_us: Vec<f64>) {
     );
 }
 
-fn receive_iceoryx2(run_id: &str, frames: usize) -> Result<()> {
+fn receive_iceoryx2(run_id: &str, frames: usize, poll: bool) -> Result<()> {
     let names = RunNames::new(run_id).map_err(anyhow::Error::msg)?;
     let transport = Transport::open(&names, "bench-receiver")?;
     let rx = transport.slice_receiver::<FrameHeader>(Topic::Frames)?;
@@ -214,10 +226,20 @@ fn receive_iceoryx2(run_id: &str, frames: usize) -> Result<()> {
     let _a = attach(&ws, &rx)?;
     print!("r");
     std::io::stdout().flush()?;
-    let mut lat = Vec::with_capacity(frames);
+    let total = frames + WARMUP;
+    let mut lat = Vec::with_capacity(total);
     let mut checksum = 0u64;
-    while lat.len() < frames {
-        if wait(&ws, Duration::from_secs(5))? == Wake::Terminate {
+    let started = std::time::Instant::now();
+    while lat.len() < total {
+        if poll {
+            if !rx.has_samples()? {
+                std::hint::spin_loop();
+                if started.elapsed() > Duration::from_secs(120) {
+                    bail!("sender stopped");
+                }
+                continue;
+            }
+        } else if wait(&ws, Duration::from_secs(5))? == Wake::Terminate {
             break;
         }
         rx.clear_wakeups();
@@ -238,9 +260,9 @@ fn receive_uds(path: &str, frames: usize) -> Result<()> {
     print!("r");
     std::io::stdout().flush()?;
     let mut buf = vec![0u8; 8 + FRAME_BYTES];
-    let mut lat = Vec::with_capacity(frames);
+    let mut lat = Vec::with_capacity(frames + WARMUP);
     let mut checksum = 0u64;
-    for _ in 0..frames {
+    for _ in 0..frames + WARMUP {
         stream.read_exact(&mut buf)?;
         let sent = u64::from_ne_bytes(buf[..8].try_into().unwrap());
         checksum += buf[8] as u64 + buf[buf.len() - 1] as u64;

@@ -9,8 +9,24 @@ tum := shared + "/data/tum/rgbd_dataset_freiburg1_rpy_first300"
 build:
     cargo build --release --workspace
 
+# ONNX Runtime 1.31.1 from its PyPI wheel (pinned and verified) into .cache/onnxruntime; idempotent.
+setup:
+    #!/usr/bin/env bash
+    set -euo pipefail
+    lib=.cache/onnxruntime/libonnxruntime.so.1.31.1
+    want=fc44112fbe06d7d689c57e11d3862031f64711007e4ee020f8eed5185fd2c1d3
+    if [ ! -f "$lib" ] || ! echo "$want  $lib" | sha256sum --check --status; then
+        echo "provisioning ONNX Runtime 1.31.1 from PyPI (onnxruntime wheel) into .cache/onnxruntime"
+        rm -rf .cache/wheels && mkdir -p .cache/wheels .cache/onnxruntime
+        python3 -m pip download --quiet --disable-pip-version-check --no-deps --only-binary=:all: \
+            --python-version 3.11 --platform manylinux_2_28_x86_64 onnxruntime==1.31.1 -d .cache/wheels
+        python3 -c 'import sys, zipfile, glob; z = zipfile.ZipFile(glob.glob(".cache/wheels/onnxruntime-1.31.1-*.whl")[0]); open(sys.argv[1], "wb").write(z.read("onnxruntime/capi/libonnxruntime.so.1.31.1"))' "$lib"
+        rm -rf .cache/wheels
+    fi
+    echo "$want  $lib" | sha256sum --check --quiet || { echo "error: $lib does not match its pinned sha256; delete it and run just setup again" >&2; exit 1; }
+
 # Run the whole pipeline on a TUM RGB-D folder (default: the shared sequence).
-run dataset=tum *args="": build
+run dataset=tum *args="": build setup
     ./target/release/dynslam run "{{dataset}}" {{args}}
 
 # The reference evaluation tool evo (PyPI, pinned) in the repo's ignored .cache, for the parity test.
@@ -25,7 +41,7 @@ evo:
     fi
 
 # Format check, lints, unit and integration tests (multi-process, fault injection, evo parity).
-test: build evo
+test: build setup evo
     cargo fmt --all -- --check
     cargo clippy --release --workspace --all-targets -- -D warnings
     cargo test --release --workspace

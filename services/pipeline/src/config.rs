@@ -23,6 +23,28 @@ pub struct PipelineConfig {
     pub supervisor: SupervisorConfig,
     #[serde(default)]
     pub services: ServicesConfig,
+    #[serde(default)]
+    pub onnxruntime: OnnxRuntimeConfig,
+}
+
+/// The ONNX Runtime shared library the model backends load.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct OnnxRuntimeConfig {
+    /// Path of `libonnxruntime.so`; default: `$ORT_DYLIB_PATH`, then the
+    /// `just setup` cache.
+    pub library: Option<PathBuf>,
+    /// Expected sha256 of the library (empty: not checked).
+    pub sha256: String,
+}
+
+impl Default for OnnxRuntimeConfig {
+    fn default() -> Self {
+        Self {
+            library: None,
+            sha256: "fc44112fbe06d7d689c57e11d3862031f64711007e4ee020f8eed5185fd2c1d3".into(),
+        }
+    }
 }
 
 /// How frames are clocked through the pipeline.
@@ -183,6 +205,21 @@ pub struct ServiceConfig {
     pub work_ms: u64,
     /// Scripted SLAM: append every tracked seq to this file (delivery tests).
     pub seen_log: Option<PathBuf>,
+    /// Model backends: file name of the model (located as described in
+    /// `pipeline::provision`), an explicit path, and its sha256.
+    pub model: String,
+    pub model_path: Option<PathBuf>,
+    pub model_sha256: String,
+    /// Model backends: minimum class score of an instance.
+    pub score_threshold: Option<f32>,
+    /// Model backends: IoU above which the weaker of two same-class boxes is suppressed.
+    pub iou_threshold: Option<f32>,
+    /// Model backends: the movable classes that become dynamic masks (names).
+    pub classes: Vec<String>,
+    /// Model backends: square network input size in pixels.
+    pub input_size: Option<u32>,
+    /// Model backends: ONNX Runtime intra-op threads.
+    pub threads: Option<usize>,
 }
 
 /// A configuration error that names the file, the key path and the problem.

@@ -11,6 +11,7 @@
 pub mod clock;
 pub mod config;
 pub mod mask_worker;
+pub mod provision;
 pub mod runtime;
 pub mod stats;
 pub mod transport;

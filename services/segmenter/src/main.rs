@@ -6,8 +6,9 @@
 use std::process::ExitCode;
 
 use clap::Parser;
-use pipeline::mask_worker::{self, model_from_config};
+use pipeline::mask_worker::{self, model_from_config, ModelFactory};
 use pipeline::runtime::{run_service, ServiceArgs};
+use segmenter::onnx::{init_runtime, YoloSeg, YoloSettings};
 use shared_types::{MaskSource, ServiceKind};
 
 #[derive(Debug, Parser)]
@@ -20,7 +21,12 @@ struct Args {
 fn main() -> ExitCode {
     let args = Args::parse();
     run_service(ServiceKind::Segmenter, &args.service, |ctx| {
-        let model = model_from_config(&ctx, &[])?;
+        let yolo: &ModelFactory = &|ctx| {
+            let settings = YoloSettings::from_config(&ctx.config.services.segmenter)?;
+            let env = init_runtime(&ctx.config.onnxruntime)?;
+            Ok(Box::new(YoloSeg::load(env, settings)?))
+        };
+        let model = model_from_config(&ctx, &[("yolov8-seg", yolo)])?;
         mask_worker::run(ctx, MaskSource::Segmenter, model)
     })
 }

@@ -9,8 +9,9 @@ use pipeline::stats::percentile;
 
 use crate::outputs::FrameRow;
 
-/// The stages of a frame's path, in path order.
-pub const STAGES: [&str; 8] = [
+/// The stages of a frame's path, in path order, then the two mask workers'
+/// own working time (segmenter on keyframes, propagator otherwise).
+pub const STAGES: [&str; 10] = [
     "decode",
     "capture_to_route",
     "route_to_masks",
@@ -19,6 +20,8 @@ pub const STAGES: [&str; 8] = [
     "transport_frame",
     "track_to_supervisor",
     "end_to_end",
+    "segmenter",
+    "propagator",
 ];
 
 fn span(from: u64, to: u64) -> Option<f64> {
@@ -26,7 +29,7 @@ fn span(from: u64, to: u64) -> Option<f64> {
 }
 
 /// Milliseconds of each stage of one row (`None` where a stage did not happen).
-pub fn stage_ms(r: &FrameRow) -> [Option<f64>; 8] {
+pub fn stage_ms(r: &FrameRow) -> [Option<f64>; 10] {
     let s = &r.stamps;
     let masks_end = if s.masks_done_ns > 0 {
         s.masks_done_ns
@@ -46,6 +49,16 @@ pub fn stage_ms(r: &FrameRow) -> [Option<f64>; 8] {
         span(s.published_ns, s.slam_received_ns),
         span(s.track_done_ns, r.track_received_ns),
         span(s.capture_ns, r.track_received_ns),
+        if r.route == "segment" {
+            span(s.masks_start_ns, s.masks_done_ns)
+        } else {
+            None
+        },
+        if r.route == "propagate" {
+            span(s.masks_start_ns, s.masks_done_ns)
+        } else {
+            None
+        },
     ]
 }
 
@@ -60,7 +73,7 @@ pub struct StageSummary {
 }
 
 pub fn summarize(rows: &[FrameRow]) -> Vec<StageSummary> {
-    let per_row: Vec<[Option<f64>; 8]> = rows.iter().map(stage_ms).collect();
+    let per_row: Vec<[Option<f64>; 10]> = rows.iter().map(stage_ms).collect();
     STAGES
         .iter()
         .enumerate()

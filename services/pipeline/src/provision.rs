@@ -1,0 +1,182 @@
+//! Locating and verifying the files models need: model weights and the ONNX
+//! Runtime shared library. Nothing is ever downloaded here: `just setup`
+//! provisions the library from the PyPI wheel; weights come from a path.
+//! Every file is checked against the sha256 in the configuration, and every
+//! failure says which file, where it was looked for and how to provide it.
+
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+use sha2::{Digest, Sha256};
+
+/// Environment variable naming a folder of model files.
+pub const MODELS_ENV: &str = "DYNSLAM_MODELS";
+/// Environment variable naming the ONNX Runtime library (ort's own name).
+pub const ORT_ENV: &str = "ORT_DYLIB_PATH";
+/// Where `just setup` puts the ONNX Runtime library, relative to the repo.
+pub const ORT_CACHE: &str = ".cache/onnxruntime/libonnxruntime.so.1.31.1";
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum ProvisionError {
+    #[error("model file {file} not found; looked in: {looked}. Put it in one of these places, set {MODELS_ENV} to its folder, or set `model_path` in the config")]
+    ModelMissing { file: String, looked: String },
+    #[error("ONNX Runtime library not found; looked in: {looked}. Run `just setup` (it extracts it from the PyPI wheel onnxruntime==1.31.1) or set {ORT_ENV}")]
+    RuntimeMissing { looked: String },
+    #[error("{path}: sha256 is {found}, the configuration expects {expected}; the file is corrupt or a different version")]
+    HashMismatch {
+        path: PathBuf,
+        expected: String,
+        found: String,
+    },
+    #[error("{path}: cannot read: {message}")]
+    Unreadable { path: PathBuf, message: String },
+}
+
+/// The repository root of a binary in `<repo>/target/<profile>/`.
+pub fn repo_root_of_exe() -> Option<PathBuf> {
+    let exe = std::env::current_exe().ok()?;
+    Some(exe.parent()?.parent()?.parent()?.to_path_buf())
+}
+
+/// Finds a model file: the configured path (and only it, when given), else
+/// `$DYNSLAM_MODELS/<file>`, then `../shared/models/<file>` beside the
+/// working directory and beside the repository of the running binary.
+pub fn locate_model(file: &str, configured: Option<&Path>) -> Result<PathBuf, ProvisionError> {
+    let mut candidates: Vec<PathBuf> = Vec::new();
+    if let Some(p) = configured {
+        // An explicit path is a decision: never silently use another file.
+        candidates.push(p.to_path_buf());
+        return find_first(&candidates).ok_or_else(|| ProvisionError::ModelMissing {
+            file: file.to_string(),
+            looked: describe(&candidates),
+        });
+    }
+    if let Some(dir) = std::env::var_os(MODELS_ENV) {
+        candidates.push(PathBuf::from(dir).join(file));
+    }
+    candidates.push(PathBuf::from("../shared/models").join(file));
+    if let Some(root) = repo_root_of_exe() {
+        candidates.push(root.join("../shared/models").join(file));
+    }
+    find_first(&candidates).ok_or_else(|| ProvisionError::ModelMissing {
+        file: file.to_string(),
+        looked: describe(&candidates),
+    })
+}
+
+/// Finds the ONNX Runtime library: the configured path (and only it, when
+/// given), else `$ORT_DYLIB_PATH`, then the `just setup` cache of the
+/// working directory and of the repo.
+pub fn locate_onnxruntime(configured: Option<&Path>) -> Result<PathBuf, ProvisionError> {
+    let mut candidates: Vec<PathBuf> = Vec::new();
+    if let Some(p) = configured {
+        candidates.push(p.to_path_buf());
+        return find_first(&candidates).ok_or_else(|| ProvisionError::RuntimeMissing {
+            looked: describe(&candidates),
+        });
+    }
+    if let Some(p) = std::env::var_os(ORT_ENV) {
+        candidates.push(PathBuf::from(p));
+    }
+    candidates.push(PathBuf::from(ORT_CACHE));
+    if let Some(root) = repo_root_of_exe() {
+        candidates.push(root.join(ORT_CACHE));
+    }
+    find_first(&candidates).ok_or_else(|| ProvisionError::RuntimeMissing {
+        looked: describe(&candidates),
+    })
+}
+
+fn find_first(candidates: &[PathBuf]) -> Option<PathBuf> {
+    candidates.iter().find(|p| p.is_file()).cloned()
+}
+
+fn describe(candidates: &[PathBuf]) -> String {
+    candidates
+        .iter()
+        .map(|p| p.display().to_string())
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// Hex sha256 of a file.
+pub fn sha256_of(path: &Path) -> Result<String, ProvisionError> {
+    let unreadable = |e: std::io::Error| ProvisionError::Unreadable {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    };
+    let mut file = std::fs::File::open(path).map_err(unreadable)?;
+    let mut hasher = Sha256::new();
+    let mut buf = vec![0u8; 1 << 20];
+    loop {
+        let n = file.read(&mut buf).map_err(unreadable)?;
+        if n == 0 {
+            break;
+        }
+        hasher.update(&buf[..n]);
+    }
+    Ok(hasher
+        .finalize()
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect())
+}
+
+/// Checks a file against its expected sha256 (case-insensitive hex).
+pub fn verify(path: &Path, expected: &str) -> Result<(), ProvisionError> {
+    let found = sha256_of(path)?;
+    if !found.eq_ignore_ascii_case(expected.trim()) {
+        return Err(ProvisionError::HashMismatch {
+            path: path.to_path_buf(),
+            expected: expected.trim().to_lowercase(),
+            found,
+        });
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sha256_of_known_content() {
+        let dir = std::env::temp_dir().join(format!("dynslam-prov-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let f = dir.join("abc.bin");
+        std::fs::write(&f, b"abc").unwrap();
+        let abc = "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad";
+        assert_eq!(sha256_of(&f).unwrap(), abc);
+        verify(&f, &abc.to_uppercase()).unwrap();
+        let err = verify(&f, "00").unwrap_err();
+        assert!(err.to_string().contains("abc.bin: sha256 is ba78"), "{err}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn missing_model_names_file_and_places() {
+        let err =
+            locate_model("no-such-model.onnx", Some(Path::new("/nowhere/m.onnx"))).unwrap_err();
+        let msg = err.to_string();
+        assert!(
+            msg.contains("no-such-model.onnx") && msg.contains("/nowhere/m.onnx"),
+            "{msg}"
+        );
+        assert!(msg.contains(MODELS_ENV), "{msg}");
+    }
+
+    #[test]
+    fn shared_models_are_found_and_verified() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/models");
+        let p = locate_model(
+            "yolov8n-seg_int8.onnx",
+            Some(&root.join("yolov8n-seg_int8.onnx")),
+        )
+        .unwrap();
+        verify(
+            &p,
+            "a892891617cbadd34d860f66a866393a8d4c487c49f1474e9b6d9e578332e56a",
+        )
+        .unwrap();
+    }
+}

@@ -1,0 +1,13 @@
+//! Keyframe instance segmentation.
+//!
+//! - [`coco`]: the class list of the COCO-trained models.
+//! - [`letterbox`]: the network input (aspect-preserving resize + padding)
+//!   and its inverse.
+//! - [`yolo`]: YOLOv8-seg output decoding (class-wise NMS, prototype masks),
+//!   pure Rust, testable without a model.
+//! - [`onnx`]: the YOLOv8-seg backend on ONNX Runtime, a `MaskModel`.
+
+pub mod coco;
+pub mod letterbox;
+pub mod onnx;
+pub mod yolo;

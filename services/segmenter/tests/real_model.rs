@@ -1,0 +1,168 @@
+//! The real YOLOv8n-seg model through the real ONNX Runtime on real frames.
+//! Needs `just setup` (the runtime) and ../shared/models (the weights).
+
+use std::path::{Path, PathBuf};
+
+use pipeline::config::{OnnxRuntimeConfig, ServiceConfig};
+use pipeline::provision::ORT_CACHE;
+use segmenter::coco::CLASSES;
+use segmenter::onnx::{init_runtime, YoloSeg, YoloSettings};
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn runtime() -> OnnxRuntimeConfig {
+    OnnxRuntimeConfig {
+        library: Some(repo().join(ORT_CACHE)),
+        ..Default::default()
+    }
+}
+
+fn model(classes: &[&str], score: f32) -> YoloSeg {
+    let cfg = ServiceConfig {
+        model_path: Some(repo().join("../shared/models/yolov8n-seg_f32.onnx")),
+        classes: classes.iter().map(|s| s.to_string()).collect(),
+        score_threshold: Some(score),
+        ..Default::default()
+    };
+    let settings = YoloSettings::from_config(&cfg).unwrap();
+    YoloSeg::load(init_runtime(&runtime()).unwrap(), settings).unwrap()
+}
+
+fn tum_frame(name: &str) -> (Vec<u8>, usize, usize) {
+    let p = repo()
+        .join("../shared/data/tum/rgbd_dataset_freiburg1_rpy_first300/rgb")
+        .join(name);
+    let img = image::open(p).unwrap().to_rgb8();
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    (img.into_raw(), w, h)
+}
+
+#[test]
+fn finds_the_laptop_on_the_desk_with_its_mask_inside_its_box() {
+    let mut m = model(&CLASSES, 0.3);
+    let (rgb, w, h) = tum_frame("1305031229.528748.png");
+    let mut labels = vec![0u8; w * h];
+    let inst = m.segment(&rgb, w, h, &mut labels).unwrap();
+    for (i, d) in inst.iter().enumerate() {
+        let n = labels.iter().filter(|&&l| l as usize == i + 1).count();
+        println!(
+            "{} {:.2} {:?} {n} px",
+            CLASSES[d.class_id as usize], d.score, d.bbox
+        );
+    }
+    let laptop = inst
+        .iter()
+        .position(|d| CLASSES[d.class_id as usize] == "laptop")
+        .expect("the laptop in the middle of frame 0 is found");
+    let b = inst[laptop].bbox;
+    assert!(
+        b[0] > 150.0 && b[2] < 500.0 && b[1] > 30.0 && b[3] < 330.0,
+        "{b:?}"
+    );
+    // Every labelled pixel lies in its instance's box, and masks are not empty.
+    for (i, d) in inst.iter().enumerate() {
+        let mut n = 0;
+        for y in 0..h {
+            for x in 0..w {
+                if labels[y * w + x] as usize == i + 1 {
+                    n += 1;
+                    assert!(
+                        x as f32 + 0.5 >= d.bbox[0] - 1.0 && (x as f32) < d.bbox[2] + 1.0,
+                        "pixel {x},{y} outside {:?}",
+                        d.bbox
+                    );
+                    assert!(y as f32 + 0.5 >= d.bbox[1] - 1.0 && (y as f32) < d.bbox[3] + 1.0);
+                }
+            }
+        }
+        let area = (d.bbox[2] - d.bbox[0]) * (d.bbox[3] - d.bbox[1]);
+        assert!(
+            n as f32 > 0.2 * area,
+            "mask of {i} covers {n} of {area} box pixels"
+        );
+    }
+}
+
+#[test]
+fn only_dynamic_classes_become_masks() {
+    // A static desk scene: nothing movable in it.
+    let mut m = model(&["person", "car", "bicycle"], 0.5);
+    let (rgb, w, h) = tum_frame("1305031229.528748.png");
+    let mut labels = vec![0u8; w * h];
+    let inst = m.segment(&rgb, w, h, &mut labels).unwrap();
+    assert!(inst.is_empty(), "{inst:?}");
+    assert!(labels.iter().all(|&l| l == 0));
+}
+
+#[test]
+fn bad_model_files_and_runtime_give_named_errors() {
+    let dir = std::env::temp_dir().join(format!("dynslam-badmodel-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // Wrong hash.
+    let cfg = ServiceConfig {
+        model_path: Some(repo().join("../shared/models/yolov8n-seg_int8.onnx")),
+        model: "yolov8n-seg_int8.onnx".into(),
+        model_sha256: "00".repeat(32),
+        ..Default::default()
+    };
+    let err = YoloSettings::from_config(&cfg).unwrap_err().to_string();
+    assert!(
+        err.contains("yolov8n-seg_int8.onnx: sha256 is a892"),
+        "{err}"
+    );
+    // Missing model.
+    let cfg = ServiceConfig {
+        model_path: Some(dir.join("nothing.onnx")),
+        model: "nothing.onnx".into(),
+        model_sha256: "00".repeat(32),
+        ..Default::default()
+    };
+    let err = YoloSettings::from_config(&cfg).unwrap_err().to_string();
+    assert!(
+        err.contains("model file nothing.onnx not found") && err.contains("DYNSLAM_MODELS"),
+        "{err}"
+    );
+    // Corrupt ONNX file with a matching hash: the loader names the file.
+    let corrupt = dir.join("corrupt.onnx");
+    std::fs::write(&corrupt, b"not a protobuf at all").unwrap();
+    let sha = pipeline::provision::sha256_of(&corrupt).unwrap();
+    let cfg = ServiceConfig {
+        model_path: Some(corrupt.clone()),
+        model: "corrupt.onnx".into(),
+        model_sha256: sha,
+        ..Default::default()
+    };
+    let settings = YoloSettings::from_config(&cfg).unwrap();
+    let err = YoloSeg::load(init_runtime(&runtime()).unwrap(), settings)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        err.contains("corrupt.onnx: cannot load the ONNX model"),
+        "{err}"
+    );
+    // Unknown class name.
+    let cfg = ServiceConfig {
+        model_path: Some(repo().join("../shared/models/yolov8n-seg_f32.onnx")),
+        classes: vec!["pedestrian".into()],
+        ..Default::default()
+    };
+    let err = YoloSettings::from_config(&cfg).unwrap_err().to_string();
+    assert!(
+        err.contains("services.segmenter.classes") && err.contains("'pedestrian'"),
+        "{err}"
+    );
+    // Missing runtime library.
+    let err = init_runtime(&OnnxRuntimeConfig {
+        library: Some(dir.join("libonnxruntime.so")),
+        sha256: String::new(),
+    });
+    let err = err.err().unwrap().to_string();
+    assert!(
+        err.contains("ONNX Runtime library not found") && err.contains("just setup"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}

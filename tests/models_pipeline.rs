@@ -1,0 +1,104 @@
+//! The pipeline with the real segmenter model (YOLOv8n-seg through ONNX
+//! Runtime): it runs on keyframes and its stage shows in the latency
+//! summary; without its model file the run goes on unmasked.
+//! Needs `just setup` (part of `just test`) and ../shared/models.
+
+mod common;
+use common::*;
+
+fn segmenter_config(model_line: &str) -> String {
+    format!(
+        "[services.slam]\nbackend = \"scripted\"\nkeyframe_every = 4\n\
+         [services.segmenter]\nbackend = \"yolov8-seg\"\n{model_line}\n\
+         [onnxruntime]\nlibrary = \"{}\"\n",
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join(pipeline::provision::ORT_CACHE)
+            .display()
+    )
+}
+
+#[test]
+fn real_segmenter_runs_on_keyframes_and_its_latency_is_reported() {
+    let dir = scratch("yolo-pipeline");
+    let config = write_config(&dir, &segmenter_config("model = \"yolov8n-seg_f32.onnx\""));
+    let run = run(
+        &shared_tum(),
+        &config,
+        &dir.join("runs"),
+        &format!("yolo{}", std::process::id()),
+        &["--limit", "40"],
+    );
+    assert!(run.success(), "{}", run.stderr());
+    assert!(
+        run.stderr()
+            .contains("segmenter ready with model 'yolov8-seg'"),
+        "{}",
+        run.stderr()
+    );
+    let rows = read_rows(&run.run_dir);
+    assert_eq!(rows.len(), 40);
+    let segmented: Vec<_> = rows.iter().filter(|r| r["route"] == "segment").collect();
+    assert_eq!(segmented.len(), 10, "keyframe every 4 frames");
+    assert!(segmented
+        .iter()
+        .all(|r| r["mask_source"] == "segmenter" && r["state"] == "ok"));
+    let summary: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(run.run_dir.join("latency_summary.json")).unwrap(),
+    )
+    .unwrap();
+    let seg = summary["stages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["stage"] == "segmenter")
+        .unwrap()
+        .clone();
+    assert_eq!(seg["count"], 10);
+    // A real network ran: milliseconds, not microseconds.
+    assert!(seg["p50_ms"].as_f64().unwrap() > 3.0, "{seg}");
+    assert_no_shm_left(&run.run_id);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn missing_model_leaves_slam_running_with_frames_unmasked() {
+    let dir = scratch("nomodel");
+    let config = write_config(
+        &dir,
+        &segmenter_config(&format!(
+            "model = \"missing.onnx\"\nmodel_path = \"{}\"\nmodel_sha256 = \"{}\"",
+            dir.join("missing.onnx").display(),
+            "0".repeat(64)
+        )),
+    );
+    let run = run(
+        &shared_tum(),
+        &config,
+        &dir.join("runs"),
+        &format!("nomodel{}", std::process::id()),
+        &["--limit", "12"],
+    );
+    let stderr = run.stderr();
+    assert!(run.success(), "{stderr}");
+    assert!(
+        stderr.contains("model file missing.onnx not found"),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("segmenter stopped on bad input"),
+        "not restarted in a loop:\n{stderr}"
+    );
+    let rows = read_rows(&run.run_dir);
+    assert_eq!(rows.len(), 12);
+    for r in &rows {
+        assert_eq!(r["state"], "ok");
+        assert_eq!(r["route"], "skip");
+        assert!(r["note"].contains("unmasked"), "{r:?}");
+    }
+    let status: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.run_dir.join("status.json")).unwrap())
+            .unwrap();
+    assert_eq!(status["restarts"], 0);
+    assert_no_shm_left(&run.run_id);
+    std::fs::remove_dir_all(&dir).ok();
+}

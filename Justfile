@@ -40,8 +40,21 @@ evo:
         "$venv/bin/pip" install --quiet --disable-pip-version-check evo==1.38.1
     fi
 
+# Test images that registry packages ship (not committed: their licences are not ours), into .cache/fixtures.
+fixtures: evo
+    #!/usr/bin/env bash
+    set -euo pipefail
+    out=.cache/fixtures/bus.png
+    if [ ! -f "$out" ]; then
+        echo "extracting bus.jpg (people and a bus on a street) from the PyPI wheel ultralytics==8.4.190 (AGPL-3.0)"
+        rm -rf .cache/wheels && mkdir -p .cache/wheels .cache/fixtures
+        python3 -m pip download --quiet --disable-pip-version-check --no-deps --only-binary=:all: ultralytics==8.4.190 -d .cache/wheels
+        .cache/evo-venv/bin/python -c 'import io, sys, glob, zipfile; from PIL import Image; z = zipfile.ZipFile(glob.glob(".cache/wheels/ultralytics-*.whl")[0]); Image.open(io.BytesIO(z.read("ultralytics/assets/bus.jpg"))).convert("RGB").save(sys.argv[1])' "$out"
+        rm -rf .cache/wheels
+    fi
+
 # Format check, lints, unit and integration tests (multi-process, fault injection, evo parity).
-test: build setup evo
+test: build setup evo fixtures
     cargo fmt --all -- --check
     cargo clippy --release --workspace --all-targets -- -D warnings
     cargo test --release --workspace
@@ -49,6 +62,10 @@ test: build setup evo
 # Accuracy of a trajectory against ground truth (ATE/RPE, as evo computes them).
 eval gt est *args="": build
     ./target/release/dynslam eval --gt "{{gt}}" --est "{{est}}" {{args}}
+
+# Model speed: segmenter ms per 640x480 frame, 2 threads (writes bench-results/models.json).
+bench-models: build setup
+    ./target/release/segmenter-bench --threads 2
 
 # Transport benchmark: iceoryx2 zero-copy vs a Unix-socket copy (writes bench-results/transport.json).
 bench: build

@@ -1,0 +1,96 @@
+//! Segmenter speed: median and p99 milliseconds per 640x480 frame
+//! (letterbox + YOLOv8n-seg inference + decoding + mask painting) on real
+//! TUM frames, ONNX Runtime with the configured number of threads.
+//!
+//! `segmenter-bench [--frames N] [--threads T] [--config FILE] [--out FILE]`
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use clap::Parser;
+use pipeline::config::PipelineConfig;
+use pipeline::stats::percentile;
+use segmenter::onnx::{init_runtime, YoloSeg, YoloSettings};
+
+#[derive(Debug, Parser)]
+#[command(about = "YOLOv8-seg segmenter: ms per 640x480 frame")]
+struct Args {
+    /// TUM RGB-D folder whose frames are segmented.
+    #[arg(
+        long,
+        default_value = "../shared/data/tum/rgbd_dataset_freiburg1_rpy_first300"
+    )]
+    dataset: PathBuf,
+    #[arg(long, default_value_t = 100)]
+    frames: usize,
+    /// ONNX Runtime intra-op threads.
+    #[arg(long, default_value_t = 2)]
+    threads: usize,
+    #[arg(long, default_value = "configs/pipeline.toml")]
+    config: PathBuf,
+    #[arg(long, default_value = "bench-results/models.json")]
+    out: PathBuf,
+}
+
+fn main() -> Result<()> {
+    let args = Args::parse();
+    let config = PipelineConfig::load(&args.config)?;
+    let mut cfg = config.services.segmenter.clone();
+    cfg.threads = Some(args.threads);
+    let settings = YoloSettings::from_config(&cfg)?;
+    let model_name = settings.model.display().to_string();
+    let mut model = YoloSeg::load(init_runtime(&config.onnxruntime)?, settings)?;
+
+    let list = std::fs::read_to_string(args.dataset.join("rgb.txt"))
+        .with_context(|| format!("cannot read {}", args.dataset.join("rgb.txt").display()))?;
+    let files: Vec<PathBuf> = list
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .filter_map(|l| l.split_whitespace().nth(1))
+        .map(|f| args.dataset.join(f))
+        .take(args.frames)
+        .collect();
+    let images: Vec<_> = files
+        .iter()
+        .map(|f| {
+            image::open(f)
+                .map(|i| i.to_rgb8())
+                .with_context(|| format!("{}", f.display()))
+        })
+        .collect::<Result<_>>()?;
+    let (w, h) = (images[0].width() as usize, images[0].height() as usize);
+    let mut labels = vec![0u8; w * h];
+    // Warm-up outside the measurement.
+    for img in images.iter().take(5) {
+        model.segment(img.as_raw(), w, h, &mut labels)?;
+    }
+    let mut ms = Vec::with_capacity(images.len());
+    let mut found = 0;
+    for img in &images {
+        labels.fill(0);
+        let t = Instant::now();
+        found += model.segment(img.as_raw(), w, h, &mut labels)?.len();
+        ms.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    ms.sort_by(f64::total_cmp);
+    let (p50, p99) = (percentile(&ms, 50.0), percentile(&ms, 99.0));
+    println!(
+        "segmenter {model_name}, {w}x{h}, {} threads, {} frames",
+        args.threads,
+        ms.len()
+    );
+    println!("{:<12} {:>9} {:>9}", "stage", "p50 ms", "p99 ms");
+    println!("{:<12} {:>9.2} {:>9.2}", "segmenter", p50, p99);
+    println!("propagator: no propagation backend yet (the `none` backend does no work)");
+    println!("({found} dynamic-class instances found)");
+    if let Some(dir) = args.out.parent() {
+        std::fs::create_dir_all(dir)?;
+    }
+    std::fs::write(
+        &args.out,
+        format!("{{\n  \"segmenter_p50_ms\": {p50:.3},\n  \"segmenter_p99_ms\": {p99:.3},\n  \"threads\": {},\n  \"frames\": {}\n}}\n", args.threads, ms.len()),
+    )?;
+    println!("wrote {}", args.out.display());
+    Ok(())
+}

@@ -6,8 +6,10 @@
 //! - [`yolo`]: YOLOv8-seg output decoding (class-wise NMS, prototype masks),
 //!   pure Rust, testable without a model.
 //! - [`onnx`]: the YOLOv8-seg backend on ONNX Runtime, a `MaskModel`.
+//! - [`maskrcnn`]: the Mask R-CNN backend (torchvision ONNX export signature).
 
 pub mod coco;
 pub mod letterbox;
+pub mod maskrcnn;
 pub mod onnx;
 pub mod yolo;

@@ -8,6 +8,7 @@ use std::process::ExitCode;
 use clap::Parser;
 use pipeline::mask_worker::{self, model_from_config, ModelFactory};
 use pipeline::runtime::{run_service, ServiceArgs};
+use segmenter::maskrcnn::MaskRcnn;
 use segmenter::onnx::{init_runtime, YoloSeg, YoloSettings};
 use shared_types::{MaskSource, ServiceKind};
 
@@ -26,7 +27,14 @@ fn main() -> ExitCode {
             let env = init_runtime(&ctx.config.onnxruntime)?;
             Ok(Box::new(YoloSeg::load(env, settings)?))
         };
-        let model = model_from_config(&ctx, &[("yolov8-seg", yolo)])?;
+        let maskrcnn: &ModelFactory = &|ctx| {
+            let env = init_runtime(&ctx.config.onnxruntime)?;
+            Ok(Box::new(MaskRcnn::from_config(
+                env,
+                &ctx.config.services.segmenter,
+            )?))
+        };
+        let model = model_from_config(&ctx, &[("yolov8-seg", yolo), ("maskrcnn", maskrcnn)])?;
         mask_worker::run(ctx, MaskSource::Segmenter, model)
     })
 }

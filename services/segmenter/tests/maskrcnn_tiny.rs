@@ -1,0 +1,84 @@
+//! The Mask R-CNN backend's decoding through real ONNX Runtime, on tiny graphs
+//! with the torchvision export's output signature (constants chosen by hand:
+//! tests/reference/make_tiny_maskrcnn.py). Real Mask R-CNN weights cannot be
+//! obtained here.
+
+use std::path::{Path, PathBuf};
+
+use pipeline::config::{OnnxRuntimeConfig, ServiceConfig};
+use pipeline::provision::{sha256_of, ORT_CACHE};
+use segmenter::coco::CLASSES;
+use segmenter::maskrcnn::MaskRcnn;
+use segmenter::onnx::init_runtime;
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn load(file: &str) -> MaskRcnn {
+    let path = repo().join("tests/fixtures").join(file);
+    let cfg = ServiceConfig {
+        model: file.into(),
+        model_sha256: sha256_of(&path).unwrap(),
+        model_path: Some(path),
+        ..Default::default()
+    };
+    let env = init_runtime(&OnnxRuntimeConfig {
+        library: Some(repo().join(ORT_CACHE)),
+        ..Default::default()
+    })
+    .unwrap();
+    MaskRcnn::from_config(env, &cfg).unwrap()
+}
+
+fn run(file: &str) -> (Vec<shared_types::Instance>, Vec<u8>) {
+    let (w, h) = (64, 48);
+    let rgb = vec![128u8; w * h * 3];
+    let mut labels = vec![0u8; w * h];
+    let inst = load(file).segment(&rgb, w, h, &mut labels).unwrap();
+    (inst, labels)
+}
+
+fn count(labels: &[u8], l: u8) -> usize {
+    labels.iter().filter(|&&x| x == l).count()
+}
+
+#[test]
+fn small_masks_are_pasted_into_their_boxes() {
+    let (inst, labels) = run("tiny_maskrcnn_28.onnx");
+    // person 0.97 and car 0.93 kept; the 0.40 person (below 0.9) and the chair (static) dropped.
+    let names: Vec<_> = inst.iter().map(|i| CLASSES[i.class_id as usize]).collect();
+    assert_eq!(names, vec!["person", "car"]);
+    assert_eq!(inst[0].bbox, [8.0, 4.0, 24.0, 36.0]);
+    // Person: left half of a 16x32 box = 8x32 pixels; car: the whole 30x20 box.
+    assert_eq!(count(&labels, 1), 8 * 32);
+    assert_eq!(count(&labels, 2), 30 * 20);
+    assert_eq!(labels[10 * 64 + 9], 1);
+    assert_eq!(labels[10 * 64 + 20], 0);
+    assert_eq!(labels[3 * 64 + 3], 0, "low-score detection not painted");
+}
+
+#[test]
+fn full_size_masks_are_thresholded_in_place() {
+    let (inst, labels) = run("tiny_maskrcnn_full.onnx");
+    assert_eq!(inst.len(), 2);
+    assert_eq!(count(&labels, 1), 8 * 32);
+    // The car's two rows at probability 0.3 are not part of it.
+    assert_eq!(count(&labels, 2), 30 * 18);
+    assert_eq!(labels[10 * 64 + 40], 0);
+    assert_eq!(labels[12 * 64 + 40], 2);
+}
+
+#[test]
+fn missing_hash_is_a_configuration_error() {
+    let env = init_runtime(&OnnxRuntimeConfig {
+        library: Some(repo().join(ORT_CACHE)),
+        ..Default::default()
+    })
+    .unwrap();
+    let err = MaskRcnn::from_config(env, &ServiceConfig::default())
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(err.contains("model_sha256"), "{err}");
+}

@@ -264,8 +264,8 @@ impl MaskRcnn {
         let plane = width * height;
         self.input.resize(3 * plane, 0.0);
         for (i, px) in rgb.chunks_exact(3).enumerate() {
-            for c in 0..3 {
-                self.input[c * plane + i] = px[c] as f32 / 255.0;
+            for (c, &v) in px.iter().enumerate() {
+                self.input[c * plane + i] = v as f32 / 255.0;
             }
         }
         let input = TensorRef::from_array_view(([3usize, height, width], &self.input[..]))?;

@@ -141,9 +141,12 @@ fn realtime_mode_counts_every_frame_as_tracked_or_dropped() {
     assert!(run.success(), "{}", run.stderr());
     let rows = read_rows(&run.run_dir);
     assert_eq!(rows.len(), 60, "every frame has a row");
-    for (i, r) in rows.iter().enumerate() {
-        assert_eq!(r["seq"], i.to_string());
-    }
+    // At camera rate a frame's fate can be known after a newer one's (it
+    // reached the supervisor late), so rows are in decision order; each
+    // frame appears exactly once.
+    let mut seqs: Vec<u64> = rows.iter().map(|r| r["seq"].parse().unwrap()).collect();
+    seqs.sort_unstable();
+    assert_eq!(seqs, (0..60).collect::<Vec<u64>>());
     let dropped = rows.iter().filter(|r| r["state"] == "dropped").count();
     let tracked = rows.iter().filter(|r| r["state"] == "ok").count();
     assert!(

@@ -85,6 +85,10 @@ impl Service {
 #[derive(Debug, Clone)]
 struct Pending {
     timestamp: f64,
+    bad: bool,
+    /// The frame's stamps so far (copied into its Route).
+    stamps: shared_types::StageStamps,
+    /// Decided (and sent) route; `None` while waiting for the previous Track.
     route: Option<RouteKind>,
     note: String,
 }
@@ -251,7 +255,10 @@ impl Supervisor {
             .and_then(|p| p.route)
             .map(|r| r.as_str())
             .unwrap_or("none");
-        self.router.on_track(t.next_needs_keyframe != 0);
+        // A skipped (bad) frame was not tracked: it has no opinion on keyframes.
+        if TrackState::from_u32(t.state) != Some(TrackState::Skipped) {
+            self.router.on_track(t.next_needs_keyframe != 0);
+        }
         self.record(FrameRow {
             seq: t.seq,
             timestamp: t.source_timestamp,
@@ -292,6 +299,8 @@ impl Supervisor {
         })
     }
 
+    /// Notes a frame (or its replay). Its route is decided by
+    /// [`Self::route_ready`]; a replayed frame gets its first route again.
     fn on_frame(
         &mut self,
         h: &FrameHeader,
@@ -309,36 +318,77 @@ impl Supervisor {
         if self.rows.contains_key(&h.seq) {
             return Ok(());
         }
+        let realtime = self.config.run.mode == ClockMode::Realtime;
+        if realtime
+            && self
+                .rows
+                .keys()
+                .next_back()
+                .is_some_and(|&newest| newest > h.seq)
+        {
+            // SLAM only moves forward: a frame older than a tracked one that
+            // reaches us late is already dropped.
+            self.pending.entry(h.seq).or_insert_with(|| Pending {
+                timestamp: h.source_timestamp,
+                bad: false,
+                stamps: h.stamps,
+                route: None,
+                note: String::new(),
+            });
+            return self.record_dropped(h.seq, "a newer frame was tracked first");
+        }
         let bad = h.has(frame_flags::BAD_INPUT);
-        let availability = self.availability();
         let entry = self.pending.entry(h.seq).or_insert_with(|| Pending {
             timestamp: h.source_timestamp,
+            bad,
+            stamps: h.stamps,
             route: None,
-            note: String::new(),
+            note: if bad {
+                format!("bad input: {}", read_error_text(&h.error))
+            } else {
+                String::new()
+            },
         });
-        if bad {
-            entry.note = format!("bad input: {}", read_error_text(&h.error));
+        entry.stamps = h.stamps;
+        if let Some(kind) = entry.route {
+            send_route(routes, h.seq, kind, h.stamps, h.has(frame_flags::REPLAY))?;
         }
-        // A replayed frame keeps its first route: the decision is made once.
-        let kind = match entry.route {
-            Some(k) => k,
-            None => {
-                let k = self.router.route(h.seq, bad, availability);
-                entry.route = Some(k);
-                if k == RouteKind::Skip && !bad && !self.config.routing.no_masks {
-                    entry.note = "unmasked: no mask service available".into();
-                }
-                k
+        Ok(())
+    }
+
+    /// Decides and sends the routes of waiting frames. In lockstep a frame
+    /// is routed only once the previous frame's Track is recorded: its
+    /// keyframe flag decides the route, and iceoryx2 does not order
+    /// deliveries across services (the reader may publish frame n+1 before
+    /// Track(n) reaches the supervisor's queue).
+    fn route_ready(&mut self, routes: &pipeline::transport::Sender<Route, ()>) -> Result<()> {
+        let lockstep = self.config.run.mode == ClockMode::Lockstep;
+        let mut waiting: Vec<u64> = self
+            .pending
+            .iter()
+            .filter(|(_, p)| p.route.is_none())
+            .map(|(&s, _)| s)
+            .collect();
+        waiting.sort_unstable();
+        for seq in waiting {
+            if lockstep && seq > 0 && !self.rows.contains_key(&(seq - 1)) {
+                break;
             }
-        };
-        let mut stamps = h.stamps;
-        stamps.routed_ns = now_ns();
-        routes.send(Route {
-            seq: h.seq,
-            kind: kind as u32,
-            replay: h.has(frame_flags::REPLAY) as u32,
-            stamps,
-        })
+            let availability = self.availability();
+            let no_masks = self.config.routing.no_masks;
+            let p = self
+                .pending
+                .get_mut(&seq)
+                .expect("waiting frame is pending");
+            let kind = self.router.route(seq, p.bad, availability);
+            p.route = Some(kind);
+            if kind == RouteKind::Skip && !p.bad && !no_masks {
+                p.note = "unmasked: no mask service available".into();
+            }
+            let stamps = p.stamps;
+            send_route(routes, seq, kind, stamps, false)?;
+        }
+        Ok(())
     }
 
     /// Reaps dead children and decides on restarts.
@@ -509,6 +559,22 @@ impl Supervisor {
     }
 }
 
+fn send_route(
+    routes: &pipeline::transport::Sender<Route, ()>,
+    seq: u64,
+    kind: RouteKind,
+    mut stamps: shared_types::StageStamps,
+    replay: bool,
+) -> Result<()> {
+    stamps.routed_ns = now_ns();
+    routes.send(Route {
+        seq,
+        kind: kind as u32,
+        replay: replay as u32,
+        stamps,
+    })
+}
+
 /// Runs (or resumes) the run in `run_dir` to its end.
 pub fn execute(run_dir: &Path) -> Result<RunSummary> {
     let (info, config) = run_dir::open(run_dir)?;
@@ -650,8 +716,6 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
                 sup.start(ServiceKind::CameraReader);
             }
         }
-        // Tracks before frames: frame n+1 is only published after Track(n),
-        // so Track(n)'s keyframe flag is known when n+1 is routed.
         for t in tracks.drain()? {
             sup.on_track(t)?;
         }
@@ -661,6 +725,7 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
             drop(sample);
             sup.on_frame(&header, &routes)?;
         }
+        sup.route_ready(&routes)?;
         sup.watch_children(false)?;
         for kind in [ServiceKind::CameraReader, ServiceKind::Slam] {
             if let SvcState::Failed { reason } = &sup.svc(kind).state {

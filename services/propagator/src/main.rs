@@ -6,8 +6,9 @@
 use std::process::ExitCode;
 
 use clap::Parser;
-use pipeline::mask_worker::{self, model_from_config};
+use pipeline::mask_worker::{self, model_from_config, ModelFactory};
 use pipeline::runtime::{run_service, ServiceArgs};
+use propagator::propagate::{LkPropagator, PropagatorParams};
 use shared_types::{MaskSource, ServiceKind};
 
 #[derive(Debug, Parser)]
@@ -20,7 +21,9 @@ struct Args {
 fn main() -> ExitCode {
     let args = Args::parse();
     run_service(ServiceKind::Propagator, &args.service, |ctx| {
-        let model = model_from_config(&ctx, &[])?;
+        let lk: &ModelFactory =
+            &|_ctx| Ok(Box::new(LkPropagator::new(PropagatorParams::default())));
+        let model = model_from_config(&ctx, &[("lk", lk)])?;
         mask_worker::run(ctx, MaskSource::Propagator, model)
     })
 }

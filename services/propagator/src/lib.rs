@@ -1,0 +1,11 @@
+//! Mask propagation: each keyframe instance (a prompt from the segmenter) is
+//! followed to later frames by tracking points inside and along its mask.
+//!
+//! - [`pyramid`]: grey images and their pyramids.
+//! - [`lk`]: pyramidal Lucas-Kanade point tracking (Bouguet's formulation).
+//! - [`propagate`]: per-object motion (robust affine + interpolated residual
+//!   motion, so that non-rigid parts follow) and mask warping; a `MaskModel`.
+
+pub mod lk;
+pub mod propagate;
+pub mod pyramid;

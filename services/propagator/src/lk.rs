@@ -1,0 +1,183 @@
+//! Pyramidal Lucas-Kanade point tracking (Bouguet, "Pyramidal implementation
+//! of the Lucas Kanade feature tracker"): per level, iterative Gauss-Newton on
+//! a square window, the estimate carried from coarse to fine.
+
+use crate::pyramid::Pyramid;
+
+/// Tracking parameters.
+#[derive(Debug, Clone, Copy)]
+pub struct LkParams {
+    /// Half size of the square window (window = 2*r+1 pixels).
+    pub radius: usize,
+    pub iterations: usize,
+    /// Stop iterating when the update is smaller than this (pixels).
+    pub epsilon: f32,
+    /// Reject a point whose window has too little texture (min eigenvalue of
+    /// the structure tensor per pixel).
+    pub min_eigen: f32,
+}
+
+impl Default for LkParams {
+    fn default() -> Self {
+        Self {
+            radius: 5,
+            iterations: 10,
+            epsilon: 0.02,
+            min_eigen: 1e-2,
+        }
+    }
+}
+
+/// Tracks `points` (level-0 pixel coordinates in `prev`) into `next`; `None`
+/// where a point is untextured or leaves the image.
+pub fn track(
+    prev: &Pyramid,
+    next: &Pyramid,
+    points: &[(f32, f32)],
+    p: LkParams,
+) -> Vec<Option<(f32, f32)>> {
+    points
+        .iter()
+        .map(|&pt| track_one(prev, next, pt, p))
+        .collect()
+}
+
+fn track_one(prev: &Pyramid, next: &Pyramid, pt: (f32, f32), p: LkParams) -> Option<(f32, f32)> {
+    let levels = prev.levels.len().min(next.levels.len());
+    let r = p.radius as isize;
+    let n = ((2 * r + 1) * (2 * r + 1)) as f32;
+    // Displacement guess, in the current level's pixels.
+    let (mut gx, mut gy) = (0.0f32, 0.0f32);
+    for level in (0..levels).rev() {
+        let scale = (1u32 << level) as f32;
+        let (a, b) = (&prev.levels[level], &next.levels[level]);
+        let (ux, uy) = (pt.0 / scale, pt.1 / scale);
+        // Structure tensor and template gradients on the window of `a`.
+        let (mut gxx, mut gxy, mut gyy) = (0.0f32, 0.0f32, 0.0f32);
+        let mut grads = Vec::with_capacity(n as usize);
+        for dy in -r..=r {
+            for dx in -r..=r {
+                let (x, y) = (ux + dx as f32, uy + dy as f32);
+                let ix = 0.5 * (a.sample(x + 1.0, y) - a.sample(x - 1.0, y));
+                let iy = 0.5 * (a.sample(x, y + 1.0) - a.sample(x, y - 1.0));
+                gxx += ix * ix;
+                gxy += ix * iy;
+                gyy += iy * iy;
+                grads.push((ix, iy, a.sample(x, y)));
+            }
+        }
+        let det = gxx * gyy - gxy * gxy;
+        let trace = gxx + gyy;
+        let min_eig = 0.5 * (trace - ((gxx - gyy).powi(2) + 4.0 * gxy * gxy).sqrt());
+        if det.abs() < 1e-9 || min_eig / n < p.min_eigen {
+            return None;
+        }
+        let (mut vx, mut vy) = (0.0f32, 0.0f32);
+        for _ in 0..p.iterations {
+            let (mut bx, mut by) = (0.0f32, 0.0f32);
+            let mut k = 0;
+            for dy in -r..=r {
+                for dx in -r..=r {
+                    let (ix, iy, ia) = grads[k];
+                    k += 1;
+                    let jb = b.sample(ux + dx as f32 + gx + vx, uy + dy as f32 + gy + vy);
+                    let diff = ia - jb;
+                    bx += diff * ix;
+                    by += diff * iy;
+                }
+            }
+            let (sx, sy) = ((gyy * bx - gxy * by) / det, (gxx * by - gxy * bx) / det);
+            vx += sx;
+            vy += sy;
+            if sx * sx + sy * sy < p.epsilon * p.epsilon {
+                break;
+            }
+        }
+        gx += vx;
+        gy += vy;
+        if level > 0 {
+            gx *= 2.0;
+            gy *= 2.0;
+        }
+    }
+    let (x, y) = (pt.0 + gx, pt.1 + gy);
+    let base = &next.levels[0];
+    (x.is_finite()
+        && y.is_finite()
+        && x >= 0.0
+        && y >= 0.0
+        && x <= (base.width - 1) as f32
+        && y <= (base.height - 1) as f32)
+        .then_some((x, y))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pyramid::Gray;
+
+    /// A smooth textured image and the same image shifted by (sx, sy).
+    fn pair(sx: f32, sy: f32) -> (Pyramid, Pyramid) {
+        let (w, h) = (120, 90);
+        let f = |x: f32, y: f32| {
+            100.0 + 40.0 * (0.21 * x).sin() * (0.17 * y).cos() + 30.0 * (0.05 * (x + 2.0 * y)).sin()
+        };
+        let mut a = Vec::new();
+        let mut b = Vec::new();
+        for y in 0..h {
+            for x in 0..w {
+                a.push(f(x as f32, y as f32));
+                b.push(f(x as f32 - sx, y as f32 - sy));
+            }
+        }
+        (
+            Pyramid::new(
+                Gray {
+                    width: w,
+                    height: h,
+                    data: a,
+                },
+                3,
+            ),
+            Pyramid::new(
+                Gray {
+                    width: w,
+                    height: h,
+                    data: b,
+                },
+                3,
+            ),
+        )
+    }
+
+    #[test]
+    fn recovers_a_subpixel_and_a_large_shift() {
+        for (sx, sy) in [(0.4, -0.3), (6.5, 4.25)] {
+            let (a, b) = pair(sx, sy);
+            let pts: Vec<(f32, f32)> = (0..5).map(|i| (35.0 + 10.0 * i as f32, 45.0)).collect();
+            for (p, t) in pts.iter().zip(track(&a, &b, &pts, LkParams::default())) {
+                let (x, y) = t.expect("tracked");
+                assert!(
+                    (x - p.0 - sx).abs() < 0.05 && (y - p.1 - sy).abs() < 0.05,
+                    "{p:?} -> {x},{y} for shift {sx},{sy}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn flat_regions_are_not_tracked() {
+        let flat = Pyramid::new(
+            Gray {
+                width: 60,
+                height: 60,
+                data: vec![50.0; 3600],
+            },
+            2,
+        );
+        assert_eq!(
+            track(&flat, &flat, &[(30.0, 30.0)], LkParams::default()),
+            vec![None]
+        );
+    }
+}

@@ -1,0 +1,483 @@
+//! Per-object mask propagation, prompted by the segmenter's keyframe masks.
+//!
+//! For every object: points on a grid inside its mask and along its border
+//! are tracked from the previous frame with pyramidal LK and checked
+//! forward-backward; a robust affine motion (RANSAC on 3-point samples, then
+//! least squares on the inliers) carries the mask, and the inliers' residual
+//! motion, interpolated over the object (inverse-distance weights on a coarse
+//! grid), lets parts that move differently (arms, legs) follow. An object
+//! whose points are mostly lost, or that leaves the view, ends; the next
+//! segmenter result prompts afresh. Like SAM 2's memory, it propagates only
+//! the instances it was prompted with.
+
+use anyhow::Result;
+use nalgebra::{Matrix3, Vector3};
+use pipeline::mask_worker::MaskModel;
+use pipeline::views::{FrameView, MasksView};
+use shared_types::Instance;
+
+use crate::lk::{track, LkParams};
+use crate::pyramid::{Gray, Pyramid};
+
+#[derive(Debug, Clone, Copy)]
+pub struct PropagatorParams {
+    /// Spacing of the tracked points inside a mask (pixels).
+    pub grid_step: usize,
+    /// Keep a point when tracking it back lands within this many pixels.
+    pub max_forward_backward: f32,
+    /// An object ends when fewer than this fraction of its points track.
+    pub min_tracked_fraction: f32,
+    /// RANSAC inlier distance (pixels).
+    pub inlier_px: f32,
+    pub pyramid_levels: usize,
+    pub lk: LkParams,
+}
+
+impl Default for PropagatorParams {
+    fn default() -> Self {
+        Self {
+            grid_step: 8,
+            max_forward_backward: 1.0,
+            min_tracked_fraction: 0.25,
+            inlier_px: 2.0,
+            pyramid_levels: 3,
+            lk: LkParams::default(),
+        }
+    }
+}
+
+/// A 2x3 affine map `[a b c; d e f]`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Affine(pub [f32; 6]);
+
+impl Affine {
+    pub fn apply(&self, (x, y): (f32, f32)) -> (f32, f32) {
+        let m = &self.0;
+        (m[0] * x + m[1] * y + m[2], m[3] * x + m[4] * y + m[5])
+    }
+
+    pub fn inverse(&self) -> Option<Self> {
+        let m = &self.0;
+        let det = m[0] * m[4] - m[1] * m[3];
+        if det.abs() < 1e-6 {
+            return None;
+        }
+        let (a, b, d, e) = (m[4] / det, -m[1] / det, -m[3] / det, m[0] / det);
+        Some(Self([
+            a,
+            b,
+            -(a * m[2] + b * m[5]),
+            d,
+            e,
+            -(d * m[2] + e * m[5]),
+        ]))
+    }
+
+    /// Least-squares affine from point pairs (at least 3, not collinear).
+    pub fn fit(src: &[(f32, f32)], dst: &[(f32, f32)]) -> Option<Self> {
+        let mut ata = Matrix3::<f64>::zeros();
+        let (mut bx, mut by) = (Vector3::<f64>::zeros(), Vector3::<f64>::zeros());
+        for (s, d) in src.iter().zip(dst) {
+            let v = Vector3::new(s.0 as f64, s.1 as f64, 1.0);
+            ata += v * v.transpose();
+            bx += v * d.0 as f64;
+            by += v * d.1 as f64;
+        }
+        let inv = ata.try_inverse()?;
+        let (px, py) = (inv * bx, inv * by);
+        Some(Self([
+            px[0] as f32,
+            px[1] as f32,
+            px[2] as f32,
+            py[0] as f32,
+            py[1] as f32,
+            py[2] as f32,
+        ]))
+    }
+}
+
+/// Robust affine: RANSAC on 3-point samples (deterministic sampling), then
+/// least squares on the inliers. Returns the map and the inlier flags.
+pub fn robust_affine(
+    src: &[(f32, f32)],
+    dst: &[(f32, f32)],
+    inlier_px: f32,
+) -> Option<(Affine, Vec<bool>)> {
+    let n = src.len();
+    if n < 3 {
+        return None;
+    }
+    let count = |a: &Affine| -> Vec<bool> {
+        src.iter()
+            .zip(dst)
+            .map(|(s, d)| {
+                let p = a.apply(*s);
+                (p.0 - d.0).powi(2) + (p.1 - d.1).powi(2) <= inlier_px * inlier_px
+            })
+            .collect()
+    };
+    let mut best: Option<(Affine, Vec<bool>, usize)> = None;
+    let mut state = 0x2545_F491_4F6C_DD1Du64;
+    let mut next = || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state % n as u64) as usize
+    };
+    for _ in 0..64 {
+        let (i, j, k) = (next(), next(), next());
+        if i == j || j == k || i == k {
+            continue;
+        }
+        let Some(a) = Affine::fit(&[src[i], src[j], src[k]], &[dst[i], dst[j], dst[k]]) else {
+            continue;
+        };
+        let inl = count(&a);
+        let c = inl.iter().filter(|&&b| b).count();
+        if best.as_ref().is_none_or(|b| c > b.2) {
+            best = Some((a, inl, c));
+        }
+    }
+    let (mut a, mut inl, _) =
+        best.or_else(|| Affine::fit(src, dst).map(|a| (a, vec![true; n], n)))?;
+    for _ in 0..2 {
+        let (s, d): (Vec<_>, Vec<_>) = src
+            .iter()
+            .zip(dst)
+            .zip(&inl)
+            .filter(|(_, &k)| k)
+            .map(|((s, d), _)| (*s, *d))
+            .unzip();
+        if s.len() < 3 {
+            break;
+        }
+        a = Affine::fit(&s, &d).unwrap_or(a);
+        inl = count(&a);
+    }
+    Some((a, inl))
+}
+
+/// One object being followed.
+#[derive(Debug, Clone)]
+struct Object {
+    instance: Instance,
+    /// Full-frame mask.
+    mask: Vec<bool>,
+}
+
+/// The `lk` propagation backend.
+pub struct LkPropagator {
+    params: PropagatorParams,
+    prev: Option<Pyramid>,
+    objects: Vec<Object>,
+    width: usize,
+    height: usize,
+}
+
+impl LkPropagator {
+    pub fn new(params: PropagatorParams) -> Self {
+        Self {
+            params,
+            prev: None,
+            objects: Vec::new(),
+            width: 0,
+            height: 0,
+        }
+    }
+
+    /// New prompts: the keyframe image and its instance label image
+    /// (`i + 1` for `instances[i]`). Replaces every object.
+    pub fn prompt_with(
+        &mut self,
+        rgb: &[u8],
+        width: usize,
+        height: usize,
+        labels: &[u8],
+        instances: &[Instance],
+    ) {
+        self.width = width;
+        self.height = height;
+        self.prev = Some(Pyramid::new(
+            Gray::from_rgb(rgb, width, height),
+            self.params.pyramid_levels,
+        ));
+        self.objects = instances
+            .iter()
+            .enumerate()
+            .map(|(i, inst)| Object {
+                instance: *inst,
+                mask: labels.iter().map(|&l| l as usize == i + 1).collect(),
+            })
+            .filter(|o| o.mask.iter().any(|&m| m))
+            .collect();
+    }
+
+    /// Number of objects still followed.
+    pub fn objects(&self) -> usize {
+        self.objects.len()
+    }
+
+    /// Follows every object into the new frame; writes its labels.
+    pub fn propagate(
+        &mut self,
+        rgb: &[u8],
+        width: usize,
+        height: usize,
+        labels: &mut [u8],
+    ) -> Vec<Instance> {
+        let cur = Pyramid::new(
+            Gray::from_rgb(rgb, width, height),
+            self.params.pyramid_levels,
+        );
+        let Some(prev) = self
+            .prev
+            .take()
+            .filter(|_| width == self.width && height == self.height)
+        else {
+            // No prompt yet (or the frame size changed): nothing to follow.
+            self.objects.clear();
+            self.prev = Some(cur);
+            self.width = width;
+            self.height = height;
+            return Vec::new();
+        };
+        let params = self.params;
+        let mut kept = Vec::new();
+        for mut obj in std::mem::take(&mut self.objects) {
+            if let Some(mask) = follow(&prev, &cur, &obj.mask, width, height, &params) {
+                obj.mask = mask;
+                kept.push(obj);
+            }
+        }
+        self.objects = kept;
+        self.prev = Some(cur);
+        let mut out = Vec::new();
+        for (i, obj) in self.objects.iter_mut().enumerate().take(254) {
+            let (mut x0, mut y0, mut x1, mut y1) = (width, height, 0, 0);
+            for (p, &m) in obj.mask.iter().enumerate() {
+                if m {
+                    let (x, y) = (p % width, p / width);
+                    x0 = x0.min(x);
+                    y0 = y0.min(y);
+                    x1 = x1.max(x + 1);
+                    y1 = y1.max(y + 1);
+                    if labels[p] == 0 {
+                        labels[p] = (i + 1) as u8;
+                    }
+                }
+            }
+            obj.instance.bbox = [x0 as f32, y0 as f32, x1 as f32, y1 as f32];
+            out.push(obj.instance);
+        }
+        out
+    }
+}
+
+/// Most grid points tracked per object: large objects get a coarser grid,
+/// so that the cost per object stays bounded (about 100 + 40 points).
+const MAX_GRID_POINTS: usize = 100;
+const MAX_BORDER_POINTS: usize = 40;
+
+/// Points to track: a grid inside the mask plus its border pixels (thinned).
+fn sample_points(mask: &[bool], width: usize, height: usize, min_step: usize) -> Vec<(f32, f32)> {
+    let mut pts = Vec::new();
+    let at = |x: usize, y: usize| mask[y * width + x];
+    let area = mask.iter().filter(|&&m| m).count();
+    let step = min_step.max(((area / MAX_GRID_POINTS) as f32).sqrt().ceil() as usize);
+    for y in (step / 2..height).step_by(step) {
+        for x in (step / 2..width).step_by(step) {
+            if at(x, y) {
+                pts.push((x as f32, y as f32));
+            }
+        }
+    }
+    let mut border = Vec::new();
+    for y in 1..height.saturating_sub(1) {
+        for x in 1..width.saturating_sub(1) {
+            if at(x, y) && (!at(x - 1, y) || !at(x + 1, y) || !at(x, y - 1) || !at(x, y + 1)) {
+                border.push((x as f32, y as f32));
+            }
+        }
+    }
+    let every = border.len().div_ceil(MAX_BORDER_POINTS).max(1);
+    pts.extend(border.into_iter().step_by(every));
+    pts
+}
+
+/// The object's mask in the new frame, or `None` when it is lost.
+fn follow(
+    prev: &Pyramid,
+    cur: &Pyramid,
+    mask: &[bool],
+    width: usize,
+    height: usize,
+    p: &PropagatorParams,
+) -> Option<Vec<bool>> {
+    let pts = sample_points(mask, width, height, p.grid_step);
+    if pts.len() < 6 {
+        return None;
+    }
+    let fwd = track(prev, cur, &pts, p.lk);
+    let ok: Vec<usize> = (0..pts.len()).filter(|&i| fwd[i].is_some()).collect();
+    let there: Vec<(f32, f32)> = ok.iter().map(|&i| fwd[i].unwrap()).collect();
+    let back = track(cur, prev, &there, p.lk);
+    let (mut src, mut dst) = (Vec::new(), Vec::new());
+    for (k, &i) in ok.iter().enumerate() {
+        if let Some(b) = back[k] {
+            if (b.0 - pts[i].0).powi(2) + (b.1 - pts[i].1).powi(2) <= p.max_forward_backward.powi(2)
+            {
+                src.push(pts[i]);
+                dst.push(there[k]);
+            }
+        }
+    }
+    if (src.len() as f32) < p.min_tracked_fraction * pts.len() as f32 || src.len() < 6 {
+        return None;
+    }
+    let (affine, inliers) = robust_affine(&src, &dst, p.inlier_px)?;
+    let inv = affine.inverse()?;
+    // Residual motion of the inliers at their new positions.
+    let residuals: Vec<((f32, f32), (f32, f32))> = src
+        .iter()
+        .zip(&dst)
+        .zip(&inliers)
+        .filter(|(_, &k)| k)
+        .map(|((s, d), _)| {
+            let a = affine.apply(*s);
+            (*d, (d.0 - a.0, d.1 - a.1))
+        })
+        .collect();
+    // Target region: the warped bounding box of the mask, with margin.
+    let (mut bx0, mut by0, mut bx1, mut by1) = (f32::MAX, f32::MAX, f32::MIN, f32::MIN);
+    let (mut mx0, mut my0, mut mx1, mut my1) = (width, height, 0, 0);
+    for (i, &m) in mask.iter().enumerate() {
+        if m {
+            let (x, y) = (i % width, i / width);
+            mx0 = mx0.min(x);
+            my0 = my0.min(y);
+            mx1 = mx1.max(x);
+            my1 = my1.max(y);
+        }
+    }
+    for c in [(mx0, my0), (mx1, my0), (mx0, my1), (mx1, my1)] {
+        let (x, y) = affine.apply((c.0 as f32, c.1 as f32));
+        bx0 = bx0.min(x);
+        by0 = by0.min(y);
+        bx1 = bx1.max(x);
+        by1 = by1.max(y);
+    }
+    let margin = 4.0
+        + residuals
+            .iter()
+            .map(|(_, r)| r.0.abs().max(r.1.abs()))
+            .fold(0.0, f32::max);
+    let tx0 = (bx0 - margin).floor().max(0.0) as usize;
+    let ty0 = (by0 - margin).floor().max(0.0) as usize;
+    let tx1 = ((bx1 + margin).ceil() as usize).min(width);
+    let ty1 = ((by1 + margin).ceil() as usize).min(height);
+    if tx0 >= tx1 || ty0 >= ty1 {
+        return None; // left the view
+    }
+    // Residual field on a coarse grid over the target region (IDW).
+    const CELL: usize = 8;
+    let (gw, gh) = ((tx1 - tx0) / CELL + 2, (ty1 - ty0) / CELL + 2);
+    let mut field = vec![(0.0f32, 0.0f32); gw * gh];
+    for gy in 0..gh {
+        for gx in 0..gw {
+            let (x, y) = ((tx0 + gx * CELL) as f32, (ty0 + gy * CELL) as f32);
+            let (mut sx, mut sy, mut sw) = (0.0, 0.0, 0.0);
+            for (pos, r) in &residuals {
+                let d2 = (pos.0 - x).powi(2) + (pos.1 - y).powi(2);
+                let w = 1.0 / (d2 + 64.0);
+                sx += w * r.0;
+                sy += w * r.1;
+                sw += w;
+            }
+            if sw > 0.0 {
+                field[gy * gw + gx] = (sx / sw, sy / sw);
+            }
+        }
+    }
+    let residual_at = |x: usize, y: usize| -> (f32, f32) {
+        let (fx, fy) = (
+            (x - tx0) as f32 / CELL as f32,
+            (y - ty0) as f32 / CELL as f32,
+        );
+        let (gx, gy) = ((fx as usize).min(gw - 2), (fy as usize).min(gh - 2));
+        let (wx, wy) = (fx - gx as f32, fy - gy as f32);
+        let f = |i: usize, j: usize| field[j * gw + i];
+        let (a, b, c, d) = (f(gx, gy), f(gx + 1, gy), f(gx, gy + 1), f(gx + 1, gy + 1));
+        (
+            (a.0 * (1.0 - wx) + b.0 * wx) * (1.0 - wy) + (c.0 * (1.0 - wx) + d.0 * wx) * wy,
+            (a.1 * (1.0 - wx) + b.1 * wx) * (1.0 - wy) + (c.1 * (1.0 - wx) + d.1 * wx) * wy,
+        )
+    };
+    let mut out = vec![false; width * height];
+    let mut area = 0usize;
+    for y in ty0..ty1 {
+        for x in tx0..tx1 {
+            // Where this pixel came from: undo the residual, then the affine.
+            let r = residual_at(x, y);
+            let (sx, sy) = inv.apply((x as f32 - r.0, y as f32 - r.1));
+            let (ix, iy) = (sx.round(), sy.round());
+            if ix >= 0.0
+                && iy >= 0.0
+                && (ix as usize) < width
+                && (iy as usize) < height
+                && mask[iy as usize * width + ix as usize]
+            {
+                out[y * width + x] = true;
+                area += 1;
+            }
+        }
+    }
+    (area >= 30).then_some(out)
+}
+
+impl MaskModel for LkPropagator {
+    fn name(&self) -> &str {
+        "lk"
+    }
+
+    fn infer(&mut self, frame: &FrameView, labels: &mut [u8]) -> Result<Vec<Instance>> {
+        Ok(self.propagate(frame.rgb, frame.width(), frame.height(), labels))
+    }
+
+    fn prompt(&mut self, frame: Option<&FrameView>, masks: &MasksView) {
+        match frame {
+            Some(f) => self.prompt_with(
+                f.rgb,
+                f.width(),
+                f.height(),
+                masks.labels,
+                masks.header.instances(),
+            ),
+            None => tracing::warn!(
+                seq = masks.header.seq,
+                "keyframe image no longer held; prompt ignored"
+            ),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn affine_fit_and_inverse_round_trip() {
+        let a = Affine([1.05, 0.1, 3.0, -0.08, 0.97, -2.0]);
+        let src: Vec<(f32, f32)> = (0..10)
+            .map(|i| ((i * 7 % 13) as f32 * 5.0, (i * 3 % 11) as f32 * 4.0))
+            .collect();
+        let mut dst: Vec<(f32, f32)> = src.iter().map(|&p| a.apply(p)).collect();
+        dst[2] = (500.0, 500.0); // an outlier
+        let (fit, inl) = robust_affine(&src, &dst, 1.0).unwrap();
+        assert!(!inl[2] && inl.iter().filter(|&&b| b).count() == 9);
+        for k in 0..6 {
+            assert!((fit.0[k] - a.0[k]).abs() < 1e-3, "{fit:?}");
+        }
+        let p = fit.inverse().unwrap().apply(fit.apply((10.0, 20.0)));
+        assert!((p.0 - 10.0).abs() < 1e-3 && (p.1 - 20.0).abs() < 1e-3);
+    }
+}

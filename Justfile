@@ -63,9 +63,10 @@ test: build setup evo fixtures
 eval gt est *args="": build
     ./target/release/dynslam eval --gt "{{gt}}" --est "{{est}}" {{args}}
 
-# Model speed: segmenter ms per 640x480 frame, 2 threads (writes bench-results/models.json).
+# Model speed: segmenter and propagator ms per 640x480 frame, 2 threads (writes bench-results/).
 bench-models: build setup
     ./target/release/segmenter-bench --threads 2
+    ./target/release/propagator-bench
 
 # Transport benchmark: iceoryx2 zero-copy vs a Unix-socket copy (writes bench-results/transport.json).
 bench: build

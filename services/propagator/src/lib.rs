@@ -9,3 +9,4 @@
 pub mod lk;
 pub mod propagate;
 pub mod pyramid;
+pub mod synthetic;

@@ -6,6 +6,7 @@
 use std::path::Path;
 
 use propagator::propagate::{LkPropagator, PropagatorParams};
+use propagator::synthetic;
 use shared_types::Instance;
 
 const W: usize = 640;
@@ -17,52 +18,19 @@ fn tum(name: &str) -> image::RgbImage {
     image::open(dir.join(name)).unwrap().to_rgb8()
 }
 
-/// A frame: background shifted by `bg`, ellipse object of radii `r * scale`
-/// centred at `c`, textured from `tex` (moving with the object).
 fn render(
-    bgimg: &image::RgbImage,
+    bg: &image::RgbImage,
     tex: &image::RgbImage,
-    bg: (f32, f32),
+    shift: (f32, f32),
     c: (f32, f32),
     scale: f32,
 ) -> (Vec<u8>, Vec<bool>) {
-    let (rx, ry) = (55.0 * scale, 75.0 * scale);
-    let mut rgb = vec![0u8; W * H * 3];
-    let mut mask = vec![false; W * H];
-    for y in 0..H {
-        for x in 0..W {
-            let (dx, dy) = ((x as f32 - c.0) / rx, (y as f32 - c.1) / ry);
-            let inside = dx * dx + dy * dy <= 1.0;
-            let (sx, sy, img) = if inside {
-                // Texture coordinates relative to the object's centre.
-                (
-                    (x as f32 - c.0) / scale + 320.0,
-                    (y as f32 - c.1) / scale + 240.0,
-                    tex,
-                )
-            } else {
-                (x as f32 - bg.0, y as f32 - bg.1, bgimg)
-            };
-            let (ix, iy) = (
-                sx.round().clamp(0.0, (W - 1) as f32) as u32,
-                sy.round().clamp(0.0, (H - 1) as f32) as u32,
-            );
-            let p = img.get_pixel(ix, iy);
-            rgb[(y * W + x) * 3..(y * W + x) * 3 + 3].copy_from_slice(&p.0);
-            mask[y * W + x] = inside;
-        }
-    }
-    (rgb, mask)
+    let r = synthetic::render(bg.as_raw(), tex.as_raw(), W, H, shift, c, scale);
+    (r.rgb, r.mask)
 }
 
 fn iou(labels: &[u8], truth: &[bool]) -> f64 {
-    let (mut i, mut u) = (0, 0);
-    for (l, &t) in labels.iter().zip(truth) {
-        let m = *l == 1;
-        i += (m && t) as usize;
-        u += (m || t) as usize;
-    }
-    i as f64 / u.max(1) as f64
+    synthetic::iou(labels, 1, truth)
 }
 
 fn prompt(p: &mut LkPropagator, rgb: &[u8], mask: &[bool]) {

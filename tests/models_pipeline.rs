@@ -9,6 +9,7 @@ use common::*;
 fn segmenter_config(model_line: &str) -> String {
     format!(
         "[services.slam]\nbackend = \"scripted\"\nkeyframe_every = 4\n\
+         [services.propagator]\nbackend = \"lk\"\n\
          [services.segmenter]\nbackend = \"yolov8-seg\"\n{model_line}\n\
          [onnxruntime]\nlibrary = \"{}\"\n",
         std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -56,6 +57,24 @@ fn real_segmenter_runs_on_keyframes_and_its_latency_is_reported() {
     assert_eq!(seg["count"], 10);
     // A real network ran: milliseconds, not microseconds.
     assert!(seg["p50_ms"].as_f64().unwrap() > 3.0, "{seg}");
+    // The propagator (lk) made the other 30 frames' masks.
+    assert!(
+        run.stderr().contains("propagator ready with model 'lk'"),
+        "{}",
+        run.stderr()
+    );
+    let prop = summary["stages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["stage"] == "propagator")
+        .unwrap()
+        .clone();
+    assert_eq!(prop["count"], 30);
+    assert!(rows
+        .iter()
+        .filter(|r| r["route"] == "propagate")
+        .all(|r| r["mask_source"] == "propagator"));
     assert_no_shm_left(&run.run_id);
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -292,6 +292,15 @@ mod tests {
     }
 
     #[test]
+    fn random_lists_are_errors_or_lists_never_panics() {
+        for text in pipeline::fuzz::texts(11, 3000) {
+            if let Err(e) = list(&text) {
+                assert!(e.to_string().starts_with("/d/rgb.txt"), "{e}");
+            }
+        }
+    }
+
+    #[test]
     fn missing_folder_is_named() {
         let err = tum_folder(Path::new("/no/such/folder"), 0.02).unwrap_err();
         assert_eq!(

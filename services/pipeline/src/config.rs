@@ -377,6 +377,13 @@ mod tests {
     }
 
     #[test]
+    fn random_configs_are_errors_or_values_never_panics() {
+        for text in crate::fuzz::texts(7, 3000) {
+            let _ = PipelineConfig::parse(&text);
+        }
+    }
+
+    #[test]
     fn shipped_configs_parse() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
         for entry in std::fs::read_dir(&dir).unwrap() {

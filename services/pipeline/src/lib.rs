@@ -10,6 +10,7 @@
 
 pub mod clock;
 pub mod config;
+pub mod fuzz;
 pub mod mask_worker;
 pub mod provision;
 pub mod runtime;

@@ -14,113 +14,12 @@ use ort::session::Session;
 use ort::value::TensorRef;
 use pipeline::config::ServiceConfig;
 use pipeline::mask_worker::MaskModel;
-use pipeline::provision::{locate_model, verify};
 use pipeline::runtime::InputError;
 use pipeline::views::FrameView;
 use shared_types::{Instance, MAX_INSTANCES};
 
-use crate::coco;
-
-/// torchvision's COCO category names by category id ("N/A": unused id).
-pub const COCO91: [&str; 91] = [
-    "__background__",
-    "person",
-    "bicycle",
-    "car",
-    "motorcycle",
-    "airplane",
-    "bus",
-    "train",
-    "truck",
-    "boat",
-    "traffic light",
-    "fire hydrant",
-    "N/A",
-    "stop sign",
-    "parking meter",
-    "bench",
-    "bird",
-    "cat",
-    "dog",
-    "horse",
-    "sheep",
-    "cow",
-    "elephant",
-    "bear",
-    "zebra",
-    "giraffe",
-    "N/A",
-    "backpack",
-    "umbrella",
-    "N/A",
-    "N/A",
-    "handbag",
-    "tie",
-    "suitcase",
-    "frisbee",
-    "skis",
-    "snowboard",
-    "sports ball",
-    "kite",
-    "baseball bat",
-    "baseball glove",
-    "skateboard",
-    "surfboard",
-    "tennis racket",
-    "bottle",
-    "N/A",
-    "wine glass",
-    "cup",
-    "fork",
-    "knife",
-    "spoon",
-    "bowl",
-    "banana",
-    "apple",
-    "sandwich",
-    "orange",
-    "broccoli",
-    "carrot",
-    "hot dog",
-    "pizza",
-    "donut",
-    "cake",
-    "chair",
-    "couch",
-    "potted plant",
-    "bed",
-    "N/A",
-    "dining table",
-    "N/A",
-    "N/A",
-    "toilet",
-    "N/A",
-    "tv",
-    "laptop",
-    "mouse",
-    "remote",
-    "keyboard",
-    "cell phone",
-    "microwave",
-    "oven",
-    "toaster",
-    "sink",
-    "refrigerator",
-    "N/A",
-    "book",
-    "clock",
-    "vase",
-    "scissors",
-    "teddy bear",
-    "hair drier",
-    "toothbrush",
-];
-
-/// Index in [`coco::CLASSES`] of a torchvision category id.
-pub fn class_of_category(category: i64) -> Option<usize> {
-    let name = COCO91.get(usize::try_from(category).ok()?)?;
-    coco::CLASSES.iter().position(|c| c == name)
-}
+use crate::coco::{self, class_of_category};
+use crate::onnx::verified_model;
 
 /// The raw outputs of one inference.
 pub struct RawDetections<'a> {
@@ -219,19 +118,8 @@ impl MaskRcnn {
             )
             .into());
         }
-        let path = locate_model(&cfg.model, cfg.model_path.as_deref())
-            .map_err(|e| InputError(e.to_string()))?;
-        verify(&path, &cfg.model_sha256).map_err(|e| InputError(e.to_string()))?;
-        let names: Vec<String> = if cfg.classes.is_empty() {
-            coco::DEFAULT_DYNAMIC
-                .iter()
-                .map(|s| s.to_string())
-                .collect()
-        } else {
-            cfg.classes.clone()
-        };
-        let dynamic = coco::class_ids(&names)
-            .map_err(|e| InputError(format!("key `services.segmenter.classes`: {e}")))?;
+        let path = verified_model(&cfg.model, &cfg.model_sha256, cfg.model_path.as_deref())?;
+        let dynamic = coco::dynamic_classes(&cfg.classes, "segmenter").map_err(InputError)?;
         let session = Session::builder(&env)
             .and_then(|b| {
                 b.with_intra_threads(cfg.threads.unwrap_or(2).max(1))

@@ -53,19 +53,9 @@ impl YoloSettings {
         } else {
             cfg.model_sha256.as_str()
         };
-        let model =
-            locate_model(file, cfg.model_path.as_deref()).map_err(|e| InputError(e.to_string()))?;
-        verify(&model, sha).map_err(|e| InputError(e.to_string()))?;
-        let names: Vec<String> = if cfg.classes.is_empty() {
-            coco::DEFAULT_DYNAMIC
-                .iter()
-                .map(|s| s.to_string())
-                .collect()
-        } else {
-            cfg.classes.clone()
-        };
-        let dynamic_classes = coco::class_ids(&names)
-            .map_err(|e| InputError(format!("key `services.segmenter.classes`: {e}")))?;
+        let model = verified_model(file, sha, cfg.model_path.as_deref())?;
+        let dynamic_classes =
+            coco::dynamic_classes(&cfg.classes, "segmenter").map_err(InputError)?;
         let score_threshold = cfg.score_threshold.unwrap_or(0.5);
         let iou_threshold = cfg.iou_threshold.unwrap_or(0.7);
         for (key, v) in [
@@ -95,6 +85,13 @@ impl YoloSettings {
             threads: cfg.threads.unwrap_or(2).max(1),
         })
     }
+}
+
+/// Locates a model file and checks its sha256; failures are input errors.
+pub fn verified_model(file: &str, sha256: &str, configured: Option<&Path>) -> Result<PathBuf> {
+    let path = locate_model(file, configured).map_err(|e| InputError(e.to_string()))?;
+    verify(&path, sha256).map_err(|e| InputError(e.to_string()))?;
+    Ok(path)
 }
 
 /// The process's ONNX Runtime environment: ONNX Runtime allows one per

@@ -121,6 +121,15 @@ mod tests {
     }
 
     #[test]
+    fn random_trajectories_are_errors_or_values_never_panics() {
+        for text in pipeline::fuzz::texts(13, 3000) {
+            if let Err(e) = Trajectory::parse_tum(&text, Path::new("t.txt")) {
+                assert!(e.to_string().starts_with("t.txt"), "{e}");
+            }
+        }
+    }
+
+    #[test]
     fn errors_name_file_and_line() {
         let err = Trajectory::parse_tum("1 2 3\n", Path::new("est.txt")).unwrap_err();
         assert_eq!(

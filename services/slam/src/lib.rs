@@ -3,6 +3,7 @@
 //! [`tracker::Tracker`].
 
 pub mod eval;
+pub mod plot;
 pub mod scripted;
 pub mod tracker;
 pub mod trajectory;

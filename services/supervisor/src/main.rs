@@ -77,6 +77,9 @@ enum Command {
         /// Also write the summary to this JSON file.
         #[arg(long)]
         out: Option<PathBuf>,
+        /// Also draw estimate (red) vs ground truth (grey), x-y and x-z views, to this PNG.
+        #[arg(long)]
+        plot: Option<PathBuf>,
     },
 }
 
@@ -103,9 +106,18 @@ fn main() -> ExitCode {
         max_diff,
         json,
         out,
+        plot,
     } = &cli.command
     {
-        return match eval(gt, est, *align, *max_diff, *json, out.as_deref()) {
+        return match eval(
+            gt,
+            est,
+            *align,
+            *max_diff,
+            *json,
+            out.as_deref(),
+            plot.as_deref(),
+        ) {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => {
                 eprintln!("error: {e:#}");
@@ -207,6 +219,7 @@ fn eval(
     max_diff: f64,
     json: bool,
     out: Option<&std::path::Path>,
+    plot: Option<&std::path::Path>,
 ) -> Result<()> {
     use slam::eval::{evaluate_files, Alignment, EvalOptions};
     if !(max_diff.is_finite() && max_diff > 0.0) {
@@ -225,6 +238,9 @@ fn eval(
     let text = serde_json::to_string_pretty(&s)?;
     if let Some(path) = out {
         std::fs::write(path, &text).with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    if let Some(path) = plot {
+        slam::plot::write_trajectory_png(path, &s.positions)?;
     }
     if json {
         println!("{text}");

@@ -327,8 +327,8 @@ impl PipelineConfig {
         }
     }
 
-    pub fn to_toml(&self) -> String {
-        toml::to_string_pretty(self).expect("configuration serialises to TOML")
+    pub fn to_toml(&self) -> Result<String, toml::ser::Error> {
+        toml::to_string_pretty(self)
     }
 }
 
@@ -372,7 +372,7 @@ mod tests {
         let c =
             PipelineConfig::parse("[services.slam]\nbackend = \"scripted\"\nkeyframe_every = 4\n")
                 .unwrap();
-        let back = PipelineConfig::parse(&c.to_toml()).unwrap();
+        let back = PipelineConfig::parse(&c.to_toml().unwrap()).unwrap();
         assert_eq!(c, back);
     }
 

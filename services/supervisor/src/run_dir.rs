@@ -66,7 +66,10 @@ pub fn create(output_dir: &Path, run_id: &str, config: &PipelineConfig) -> Resul
     }
     std::fs::create_dir_all(&dir)
         .with_context(|| format!("cannot create run folder {}", dir.display()))?;
-    std::fs::write(dir.join(CONFIG_FILE), config.to_toml())?;
+    std::fs::write(
+        dir.join(CONFIG_FILE),
+        config.to_toml().context("cannot write the run's config")?,
+    )?;
     let info = RunInfo {
         run_id: run_id.to_string(),
         dataset: config.source.path.clone(),

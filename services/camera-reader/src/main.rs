@@ -54,11 +54,10 @@ fn load_source(ctx: &ServiceContext) -> Result<(Vec<FrameEntry>, FrameGeometry)>
     let run = &ctx.config.run;
     if width > run.max_width || height > run.max_height {
         return Err(InputError(format!(
-            "{}: frames are {width}x{height}, larger than run.max_width x run.max_height = {}x{} in {}",
+            "{}: frames are {width}x{height}, larger than run.max_width x run.max_height = {}x{} in the pipeline config",
             frames[0].rgb.display(),
             run.max_width,
-            run.max_height,
-            "the pipeline config"
+            run.max_height
         ))
         .into());
     }

@@ -50,18 +50,19 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
     };
     let frames = ctx.transport.slice_receiver::<FrameHeader>(Topic::Frames)?;
     let routes = ctx.transport.receiver::<Route>(Topic::Routes)?;
-    let prompts = ctx.transport.slice_receiver::<MasksHeader>(Topic::Masks)?;
+    // Only the propagator reads masks (its prompts); a segmenter subscribed
+    // to them would just have every sample delivered into an unread queue.
+    let prompts = match role {
+        MaskSource::Propagator => Some(ctx.transport.slice_receiver::<MasksHeader>(Topic::Masks)?),
+        _ => None,
+    };
     let masks_out = ctx
         .transport
         .slice_sender::<MasksHeader>(Topic::Masks, ctx.config.max_mask_bytes())?;
     let ws = waitset()?;
     let _a = attach(&ws, &frames)?;
     let _b = attach(&ws, &routes)?;
-    let _c = if role == MaskSource::Propagator {
-        Some(attach(&ws, &prompts)?)
-    } else {
-        None
-    };
+    let _c = prompts.as_ref().map(|p| attach(&ws, p)).transpose()?;
     ctx.announce_ready()?;
     tracing::info!("{} ready with model '{}'", role.as_str(), model.name());
 
@@ -84,7 +85,7 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
                 held.pop_front();
             }
         }
-        if role == MaskSource::Propagator {
+        if let Some(prompts) = &prompts {
             prompts.clear_wakeups();
             while let Some(sample) = prompts.next_sample()? {
                 let masks = MasksView::new(sample.user_header(), sample.payload())?;

@@ -42,25 +42,17 @@ pub fn repo_root_of_exe() -> Option<PathBuf> {
 /// `$DYNSLAM_MODELS/<file>`, then `../shared/models/<file>` beside the
 /// working directory and beside the repository of the running binary.
 pub fn locate_model(file: &str, configured: Option<&Path>) -> Result<PathBuf, ProvisionError> {
-    let mut candidates: Vec<PathBuf> = Vec::new();
-    if let Some(p) = configured {
-        // An explicit path is a decision: never silently use another file.
-        candidates.push(p.to_path_buf());
-        return find_first(&candidates).ok_or_else(|| ProvisionError::ModelMissing {
-            file: file.to_string(),
-            looked: describe(&candidates),
-        });
-    }
+    let mut fallbacks = Vec::new();
     if let Some(dir) = std::env::var_os(MODELS_ENV) {
-        candidates.push(PathBuf::from(dir).join(file));
+        fallbacks.push(PathBuf::from(dir).join(file));
     }
-    candidates.push(PathBuf::from("../shared/models").join(file));
+    fallbacks.push(PathBuf::from("../shared/models").join(file));
     if let Some(root) = repo_root_of_exe() {
-        candidates.push(root.join("../shared/models").join(file));
+        fallbacks.push(root.join("../shared/models").join(file));
     }
-    find_first(&candidates).ok_or_else(|| ProvisionError::ModelMissing {
+    search(configured, fallbacks).map_err(|looked| ProvisionError::ModelMissing {
         file: file.to_string(),
-        looked: describe(&candidates),
+        looked,
     })
 }
 
@@ -68,27 +60,30 @@ pub fn locate_model(file: &str, configured: Option<&Path>) -> Result<PathBuf, Pr
 /// given), else `$ORT_DYLIB_PATH`, then the `just setup` cache of the
 /// working directory and of the repo.
 pub fn locate_onnxruntime(configured: Option<&Path>) -> Result<PathBuf, ProvisionError> {
-    let mut candidates: Vec<PathBuf> = Vec::new();
-    if let Some(p) = configured {
-        candidates.push(p.to_path_buf());
-        return find_first(&candidates).ok_or_else(|| ProvisionError::RuntimeMissing {
-            looked: describe(&candidates),
-        });
-    }
+    let mut fallbacks = Vec::new();
     if let Some(p) = std::env::var_os(ORT_ENV) {
-        candidates.push(PathBuf::from(p));
+        fallbacks.push(PathBuf::from(p));
     }
-    candidates.push(PathBuf::from(ORT_CACHE));
+    fallbacks.push(PathBuf::from(ORT_CACHE));
     if let Some(root) = repo_root_of_exe() {
-        candidates.push(root.join(ORT_CACHE));
+        fallbacks.push(root.join(ORT_CACHE));
     }
-    find_first(&candidates).ok_or_else(|| ProvisionError::RuntimeMissing {
-        looked: describe(&candidates),
-    })
+    search(configured, fallbacks).map_err(|looked| ProvisionError::RuntimeMissing { looked })
 }
 
-fn find_first(candidates: &[PathBuf]) -> Option<PathBuf> {
-    candidates.iter().find(|p| p.is_file()).cloned()
+/// The first existing file: the configured path alone when there is one (an
+/// explicit path is a decision, never silently replaced by another file),
+/// else the first fallback. On failure, the places looked at, in words.
+fn search(configured: Option<&Path>, fallbacks: Vec<PathBuf>) -> Result<PathBuf, String> {
+    let candidates = match configured {
+        Some(p) => vec![p.to_path_buf()],
+        None => fallbacks,
+    };
+    candidates
+        .iter()
+        .find(|p| p.is_file())
+        .cloned()
+        .ok_or_else(|| describe(&candidates))
 }
 
 fn describe(candidates: &[PathBuf]) -> String {

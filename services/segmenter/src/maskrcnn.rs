@@ -19,7 +19,7 @@ use pipeline::views::FrameView;
 use shared_types::{Instance, MAX_INSTANCES};
 
 use crate::coco::{self, class_of_category};
-use crate::onnx::verified_model;
+use crate::onnx::{open_session, verified_model};
 
 /// The raw outputs of one inference.
 pub struct RawDetections<'a> {
@@ -120,18 +120,7 @@ impl MaskRcnn {
         }
         let path = verified_model(&cfg.model, &cfg.model_sha256, cfg.model_path.as_deref())?;
         let dynamic = coco::dynamic_classes(&cfg.classes, "segmenter").map_err(InputError)?;
-        let session = Session::builder(&env)
-            .and_then(|b| {
-                b.with_intra_threads(cfg.threads.unwrap_or(2).max(1))
-                    .map_err(Into::into)
-            })
-            .and_then(|mut b| b.commit_from_file(&path))
-            .map_err(|e| {
-                InputError(format!(
-                    "{}: cannot load the ONNX model: {e}",
-                    path.display()
-                ))
-            })?;
+        let session = open_session(&env, &path, cfg.threads.unwrap_or(2))?;
         Ok(Self {
             _env: env,
             session,

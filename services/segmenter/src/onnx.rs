@@ -94,6 +94,25 @@ pub fn verified_model(file: &str, sha256: &str, configured: Option<&Path>) -> Re
     Ok(path)
 }
 
+/// An ONNX Runtime session on a verified model file; a file ONNX Runtime
+/// cannot load is an input error naming it.
+pub fn open_session(
+    env: &ort::environment::Environment,
+    model: &Path,
+    threads: usize,
+) -> Result<Session> {
+    let session = Session::builder(env)
+        .and_then(|b| b.with_intra_threads(threads.max(1)).map_err(Into::into))
+        .and_then(|mut b| b.commit_from_file(model));
+    session.map_err(|e| {
+        InputError(format!(
+            "{}: cannot load the ONNX model: {e}",
+            model.display()
+        ))
+        .into()
+    })
+}
+
 /// The process's ONNX Runtime environment: ONNX Runtime allows one per
 /// process, so it is created on first use and shared.
 static RUNTIME: std::sync::Mutex<Option<ort::environment::Environment>> =
@@ -135,7 +154,7 @@ pub struct YoloSeg {
 
 impl YoloSeg {
     pub fn load(env: ort::environment::Environment, settings: YoloSettings) -> Result<Self> {
-        let session = Self::session(&env, &settings.model, settings.threads)?;
+        let session = open_session(&env, &settings.model, settings.threads)?;
         let n = settings.input_size;
         let mut me = Self {
             _env: env,
@@ -147,31 +166,6 @@ impl YoloSeg {
         let blank = vec![114u8; 64 * 48 * 3];
         me.segment(&blank, 64, 48, &mut vec![0u8; 64 * 48])?;
         Ok(me)
-    }
-
-    fn session(
-        env: &ort::environment::Environment,
-        model: &Path,
-        threads: usize,
-    ) -> Result<Session> {
-        let fail = |e: ort::Error| {
-            InputError(format!(
-                "{}: cannot load the ONNX model: {e}",
-                model.display()
-            ))
-        };
-        Session::builder(env)
-            .map_err(fail)?
-            .with_intra_threads(threads)
-            .map_err(|e| fail(e.into()))?
-            .commit_from_file(model)
-            .map_err(|e| {
-                InputError(format!(
-                    "{}: cannot load the ONNX model: {e}",
-                    model.display()
-                ))
-                .into()
-            })
     }
 
     /// Segments an RGB8 image: labels (`w*h`, zeroed by the caller) and instances.

@@ -169,21 +169,29 @@ fn track_next_ready(
         st.frames.iter().position(ready)
     };
     let Some(index) = index else { return Ok(None) };
+    let track = make_track(st, index, tracker)?;
+    // Everything up to this frame is consumed.
+    let seq = track.seq;
+    st.last = Some(track);
+    st.frames.retain(|f| f.sample.user_header().seq > seq);
+    st.masks.retain(|m| m.user_header().seq > seq);
+    st.routes.retain(|&s, _| s > seq);
+    Ok(Some(track))
+}
+
+/// The Track of the ready frame at `index`: tracked with its masks, or
+/// skipped when the reader marked it bad (answered only once routed, so the
+/// supervisor has the reason on file).
+fn make_track(st: &State, index: usize, tracker: &mut dyn Tracker) -> Result<Track> {
     let held = &st.frames[index];
     let header = held.sample.user_header();
     let seq = header.seq;
     let route = st.routes[&seq];
-    let masks_sample = st.masks.iter().find(|m| m.user_header().seq == seq);
-
     let mut stamps = route.stamps;
     if header.has(frame_flags::BAD_INPUT) {
-        // Answered only once routed, so the supervisor has the reason on file.
-        let track = skipped_track(header, stamps);
-        st.last = Some(track);
-        st.frames.retain(|f| f.sample.user_header().seq > seq);
-        st.routes.retain(|&s, _| s > seq);
-        return Ok(Some(track));
+        return Ok(skipped_track(header, stamps));
     }
+    let masks_sample = st.masks.iter().find(|m| m.user_header().seq == seq);
     let masks_view = match masks_sample {
         Some(m) if RouteKind::from_u32(route.kind) != Some(RouteKind::Skip) => {
             stamps = m.user_header().stamps;
@@ -203,7 +211,7 @@ fn track_next_ready(
         masks: masks_view.as_ref(),
     });
     stamps.track_done_ns = now_ns();
-    let track = Track {
+    Ok(Track {
         seq,
         source_timestamp: header.source_timestamp,
         pose: outcome.pose,
@@ -213,12 +221,7 @@ fn track_next_ready(
         mask_source: masks_view.map(|m| m.source() as u32).unwrap_or(0),
         counts: outcome.counts,
         stamps,
-    };
-    st.last = Some(track);
-    st.frames.retain(|f| f.sample.user_header().seq > seq);
-    st.masks.retain(|m| m.user_header().seq > seq);
-    st.routes.retain(|&s, _| s > seq);
-    Ok(Some(track))
+    })
 }
 
 fn skipped_track(h: &FrameHeader, mut stamps: StageStamps) -> Track {

@@ -191,13 +191,12 @@ impl FrameLog {
                 );
             }
         }
-        let fresh = rows.is_empty() && !path.exists();
         let mut file = OpenOptions::new()
             .create(true)
             .append(true)
             .open(&path)
             .with_context(|| format!("cannot open {}", path.display()))?;
-        if fresh || std::fs::metadata(&path)?.len() == 0 {
+        if std::fs::metadata(&path)?.len() == 0 {
             writeln!(file, "{HEADER}")?;
         }
         Ok((Self { file, path }, rows))

@@ -247,22 +247,20 @@ impl Supervisor {
             }
         }
         let pending = self.pending.get(&t.seq).cloned();
-        let state = TrackState::from_u32(t.state)
-            .map(|s| s.as_str())
-            .unwrap_or("invalid");
+        let state = TrackState::from_u32(t.state);
         let route = pending
             .as_ref()
             .and_then(|p| p.route)
             .map(|r| r.as_str())
             .unwrap_or("none");
         // A skipped (bad) frame was not tracked: it has no opinion on keyframes.
-        if TrackState::from_u32(t.state) != Some(TrackState::Skipped) {
+        if state != Some(TrackState::Skipped) {
             self.router.on_track(t.next_needs_keyframe != 0);
         }
         self.record(FrameRow {
             seq: t.seq,
             timestamp: t.source_timestamp,
-            state: state.to_string(),
+            state: state.map(|s| s.as_str()).unwrap_or("invalid").to_string(),
             route: route.to_string(),
             mask_source: MaskSource::from_u32(t.mask_source)
                 .unwrap_or(MaskSource::None)
@@ -318,25 +316,6 @@ impl Supervisor {
         if self.rows.contains_key(&h.seq) {
             return Ok(());
         }
-        let realtime = self.config.run.mode == ClockMode::Realtime;
-        if realtime
-            && self
-                .rows
-                .keys()
-                .next_back()
-                .is_some_and(|&newest| newest > h.seq)
-        {
-            // SLAM only moves forward: a frame older than a tracked one that
-            // reaches us late is already dropped.
-            self.pending.entry(h.seq).or_insert_with(|| Pending {
-                timestamp: h.source_timestamp,
-                bad: false,
-                stamps: h.stamps,
-                route: None,
-                note: String::new(),
-            });
-            return self.record_dropped(h.seq, "a newer frame was tracked first");
-        }
         let bad = h.has(frame_flags::BAD_INPUT);
         let entry = self.pending.entry(h.seq).or_insert_with(|| Pending {
             timestamp: h.source_timestamp,
@@ -351,7 +330,18 @@ impl Supervisor {
         });
         entry.stamps = h.stamps;
         if let Some(kind) = entry.route {
-            send_route(routes, h.seq, kind, h.stamps, h.has(frame_flags::REPLAY))?;
+            return send_route(routes, h.seq, kind, h.stamps, h.has(frame_flags::REPLAY));
+        }
+        let late = self.config.run.mode == ClockMode::Realtime
+            && self
+                .rows
+                .keys()
+                .next_back()
+                .is_some_and(|&newest| newest > h.seq);
+        if late {
+            // SLAM only moves forward: a frame older than a tracked one that
+            // reaches us late is already dropped.
+            return self.record_dropped(h.seq, "a newer frame was tracked first");
         }
         Ok(())
     }

@@ -10,6 +10,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
+use camera_reader::source::tum_folder;
 use clap::Parser;
 use pipeline::stats::percentile;
 use propagator::propagate::{LkPropagator, PropagatorParams};
@@ -32,13 +33,9 @@ struct Args {
 
 fn main() -> Result<()> {
     let args = Args::parse();
-    let list = std::fs::read_to_string(args.dataset.join("rgb.txt"))
-        .with_context(|| format!("cannot read {}", args.dataset.join("rgb.txt").display()))?;
-    let files: Vec<PathBuf> = list
-        .lines()
-        .filter(|l| !l.starts_with('#'))
-        .filter_map(|l| l.split_whitespace().nth(1))
-        .map(|f| args.dataset.join(f))
+    let files: Vec<PathBuf> = tum_folder(&args.dataset, 0.02)?
+        .into_iter()
+        .map(|f| f.rgb)
         .collect();
     let load = |i: usize| -> Result<image::RgbImage> {
         let f = &files[i % files.len()];

@@ -8,6 +8,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
+use camera_reader::source::tum_folder;
 use clap::Parser;
 use pipeline::config::PipelineConfig;
 use pipeline::stats::percentile;
@@ -42,13 +43,9 @@ fn main() -> Result<()> {
     let model_name = settings.model.display().to_string();
     let mut model = YoloSeg::load(init_runtime(&config.onnxruntime)?, settings)?;
 
-    let list = std::fs::read_to_string(args.dataset.join("rgb.txt"))
-        .with_context(|| format!("cannot read {}", args.dataset.join("rgb.txt").display()))?;
-    let files: Vec<PathBuf> = list
-        .lines()
-        .filter(|l| !l.starts_with('#'))
-        .filter_map(|l| l.split_whitespace().nth(1))
-        .map(|f| args.dataset.join(f))
+    let files: Vec<PathBuf> = tum_folder(&args.dataset, 0.02)?
+        .into_iter()
+        .map(|f| f.rgb)
         .take(args.frames)
         .collect();
     let images: Vec<_> = files

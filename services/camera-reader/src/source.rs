@@ -89,7 +89,8 @@ pub fn parse_timed_list(
     Ok(TimedList { entries })
 }
 
-fn read_list(folder: &Path, name: &str) -> Result<TimedList, SourceError> {
+/// Reads the list `name` (e.g. `rgb.txt`) of a TUM folder.
+pub fn read_list(folder: &Path, name: &str) -> Result<TimedList, SourceError> {
     let path = folder.join(name);
     let text = std::fs::read_to_string(&path).map_err(|e| SourceError::Unreadable {
         path: path.clone(),

@@ -25,6 +25,33 @@ pub struct PipelineConfig {
     pub services: ServicesConfig,
     #[serde(default)]
     pub onnxruntime: OnnxRuntimeConfig,
+    #[serde(default)]
+    pub camera: CameraConfig,
+}
+
+/// Pinhole intrinsics and radial-tangential distortion of the RGB camera
+/// (the depth image is registered to it). Default: TUM Freiburg 1.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct CameraConfig {
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+    /// OpenCV order: k1, k2, p1, p2, k3.
+    pub distortion: [f64; 5],
+}
+
+impl Default for CameraConfig {
+    fn default() -> Self {
+        Self {
+            fx: 517.306408,
+            fy: 516.469215,
+            cx: 318.643040,
+            cy: 255.313989,
+            distortion: [0.262383, -0.953104, -0.005358, 0.002628, 1.163314],
+        }
+    }
 }
 
 /// The ONNX Runtime shared library the model backends load.
@@ -291,6 +318,15 @@ impl PipelineConfig {
         }
         if !(self.source.image_period.is_finite() && self.source.image_period > 0.0) {
             return Err("key `source.image_period`: must be a positive number of seconds".into());
+        }
+        let c = &self.camera;
+        if ![c.fx, c.fy].iter().all(|f| f.is_finite() && *f > 0.0)
+            || ![c.cx, c.cy].iter().all(|v| v.is_finite())
+            || !c.distortion.iter().all(|d| d.is_finite())
+        {
+            return Err(
+                "key `camera`: fx and fy must be positive, cx, cy and distortion finite".into(),
+            );
         }
         let s = &self.supervisor;
         if s.restart_backoff_initial_ms == 0

@@ -12,6 +12,7 @@ pub mod clock;
 pub mod config;
 pub mod fuzz;
 pub mod mask_worker;
+pub mod progress;
 pub mod provision;
 pub mod runtime;
 pub mod stats;

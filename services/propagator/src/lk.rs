@@ -20,7 +20,7 @@ pub struct LkParams {
 impl Default for LkParams {
     fn default() -> Self {
         Self {
-            radius: 5,
+            radius: 7,
             iterations: 10,
             epsilon: 0.02,
             min_eigen: 1e-2,
@@ -28,26 +28,37 @@ impl Default for LkParams {
     }
 }
 
-/// Tracks `points` (level-0 pixel coordinates in `prev`) into `next`; `None`
-/// where a point is untextured or leaves the image.
+/// Tracks `points` (level-0 pixel coordinates in `prev`) into `next`,
+/// starting from the displacement `guess` (level-0 pixels: e.g. the
+/// object's motion in the previous frame, so that fast objects stay within
+/// the pyramid's reach); `None` where a point is untextured or leaves the
+/// image.
 pub fn track(
     prev: &Pyramid,
     next: &Pyramid,
     points: &[(f32, f32)],
+    guess: (f32, f32),
     p: LkParams,
 ) -> Vec<Option<(f32, f32)>> {
     points
         .iter()
-        .map(|&pt| track_one(prev, next, pt, p))
+        .map(|&pt| track_one(prev, next, pt, guess, p))
         .collect()
 }
 
-fn track_one(prev: &Pyramid, next: &Pyramid, pt: (f32, f32), p: LkParams) -> Option<(f32, f32)> {
+fn track_one(
+    prev: &Pyramid,
+    next: &Pyramid,
+    pt: (f32, f32),
+    guess: (f32, f32),
+    p: LkParams,
+) -> Option<(f32, f32)> {
     let levels = prev.levels.len().min(next.levels.len());
     let r = p.radius as isize;
     let n = ((2 * r + 1) * (2 * r + 1)) as f32;
     // Displacement guess, in the current level's pixels.
-    let (mut gx, mut gy) = (0.0f32, 0.0f32);
+    let top = (1u32 << (levels - 1)) as f32;
+    let (mut gx, mut gy) = (guess.0 / top, guess.1 / top);
     for level in (0..levels).rev() {
         let scale = (1u32 << level) as f32;
         let (a, b) = (&prev.levels[level], &next.levels[level]);
@@ -155,7 +166,10 @@ mod tests {
         for (sx, sy) in [(0.4, -0.3), (6.5, 4.25)] {
             let (a, b) = pair(sx, sy);
             let pts: Vec<(f32, f32)> = (0..5).map(|i| (35.0 + 10.0 * i as f32, 45.0)).collect();
-            for (p, t) in pts.iter().zip(track(&a, &b, &pts, LkParams::default())) {
+            for (p, t) in pts
+                .iter()
+                .zip(track(&a, &b, &pts, (0.0, 0.0), LkParams::default()))
+            {
                 let (x, y) = t.expect("tracked");
                 assert!(
                     (x - p.0 - sx).abs() < 0.05 && (y - p.1 - sy).abs() < 0.05,
@@ -176,7 +190,13 @@ mod tests {
             2,
         );
         assert_eq!(
-            track(&flat, &flat, &[(30.0, 30.0)], LkParams::default()),
+            track(
+                &flat,
+                &flat,
+                &[(30.0, 30.0)],
+                (0.0, 0.0),
+                LkParams::default()
+            ),
             vec![None]
         );
     }

@@ -29,6 +29,11 @@ pub struct PropagatorParams {
     pub min_tracked_fraction: f32,
     /// RANSAC inlier distance (pixels).
     pub inlier_px: f32,
+    /// A warped mask pixel is kept only when the new frame's smoothed grey
+    /// value there is within this of the value where it came from: this is
+    /// what lets the scene cover a person (occlusion) and what stops the mask
+    /// from smearing onto background the motion model drags along.
+    pub max_grey_difference: f32,
     pub pyramid_levels: usize,
     pub lk: LkParams,
 }
@@ -37,10 +42,11 @@ impl Default for PropagatorParams {
     fn default() -> Self {
         Self {
             grid_step: 8,
-            max_forward_backward: 1.0,
-            min_tracked_fraction: 0.25,
+            max_forward_backward: 2.0,
+            min_tracked_fraction: 0.15,
             inlier_px: 2.0,
-            pyramid_levels: 3,
+            max_grey_difference: 30.0,
+            pyramid_levels: 4,
             lk: LkParams::default(),
         }
     }
@@ -163,6 +169,9 @@ struct Object {
     instance: Instance,
     /// Full-frame mask.
     mask: Vec<bool>,
+    /// Image motion of the object in the last frame (pixels), the starting
+    /// guess for tracking it into the next.
+    motion: (f32, f32),
 }
 
 /// The `lk` propagation backend.
@@ -207,6 +216,7 @@ impl LkPropagator {
             .map(|(i, inst)| Object {
                 instance: *inst,
                 mask: labels.iter().map(|&l| l as usize == i + 1).collect(),
+                motion: (0.0, 0.0),
             })
             .filter(|o| o.mask.iter().any(|&m| m))
             .collect();
@@ -244,8 +254,11 @@ impl LkPropagator {
         let params = self.params;
         let mut kept = Vec::new();
         for mut obj in std::mem::take(&mut self.objects) {
-            if let Some(mask) = follow(&prev, &cur, &obj.mask, width, height, &params) {
+            if let Some((mask, motion)) =
+                follow(&prev, &cur, &obj.mask, obj.motion, width, height, &params)
+            {
                 obj.mask = mask;
+                obj.motion = motion;
                 kept.push(obj);
             }
         }
@@ -278,15 +291,33 @@ impl LkPropagator {
 const MAX_GRID_POINTS: usize = 100;
 const MAX_BORDER_POINTS: usize = 40;
 
-/// Points to track: a grid inside the mask plus its border pixels (thinned).
-fn sample_points(mask: &[bool], width: usize, height: usize, min_step: usize) -> Vec<(f32, f32)> {
+/// Points to track: a grid inside the mask plus its border pixels (thinned),
+/// each at least `inset` pixels inside the mask so that the tracking window
+/// sees the object, not the background that moves differently.
+fn sample_points(
+    mask: &[bool],
+    width: usize,
+    height: usize,
+    min_step: usize,
+    inset: usize,
+) -> Vec<(f32, f32)> {
     let mut pts = Vec::new();
     let at = |x: usize, y: usize| mask[y * width + x];
+    let deep = |x: usize, y: usize| {
+        x >= inset
+            && y >= inset
+            && x + inset < width
+            && y + inset < height
+            && at(x - inset, y)
+            && at(x + inset, y)
+            && at(x, y - inset)
+            && at(x, y + inset)
+    };
     let area = mask.iter().filter(|&&m| m).count();
     let step = min_step.max(((area / MAX_GRID_POINTS) as f32).sqrt().ceil() as usize);
     for y in (step / 2..height).step_by(step) {
         for x in (step / 2..width).step_by(step) {
-            if at(x, y) {
+            if at(x, y) && deep(x, y) {
                 pts.push((x as f32, y as f32));
             }
         }
@@ -294,8 +325,30 @@ fn sample_points(mask: &[bool], width: usize, height: usize, min_step: usize) ->
     let mut border = Vec::new();
     for y in 1..height.saturating_sub(1) {
         for x in 1..width.saturating_sub(1) {
-            if at(x, y) && (!at(x - 1, y) || !at(x + 1, y) || !at(x, y - 1) || !at(x, y + 1)) {
-                border.push((x as f32, y as f32));
+            let edge =
+                at(x, y) && (!at(x - 1, y) || !at(x + 1, y) || !at(x, y - 1) || !at(x, y + 1));
+            // The border point moved inwards along the mask (towards the
+            // inside neighbour), where its window covers the object.
+            if edge {
+                let inward = [(1isize, 0isize), (-1, 0), (0, 1), (0, -1)]
+                    .into_iter()
+                    .find(|&(dx, dy)| {
+                        let (ix, iy) = (
+                            x as isize + dx * inset as isize,
+                            y as isize + dy * inset as isize,
+                        );
+                        ix >= 0
+                            && iy >= 0
+                            && (ix as usize) < width
+                            && (iy as usize) < height
+                            && deep(ix as usize, iy as usize)
+                    });
+                if let Some((dx, dy)) = inward {
+                    border.push((
+                        (x as isize + dx * inset as isize) as f32,
+                        (y as isize + dy * inset as isize) as f32,
+                    ));
+                }
             }
         }
     }
@@ -304,23 +357,29 @@ fn sample_points(mask: &[bool], width: usize, height: usize, min_step: usize) ->
     pts
 }
 
-/// The object's mask in the new frame, or `None` when it is lost.
+/// The object's mask in the new frame and its image motion, or `None` when
+/// it is lost.
 fn follow(
     prev: &Pyramid,
     cur: &Pyramid,
     mask: &[bool],
+    motion: (f32, f32),
     width: usize,
     height: usize,
     p: &PropagatorParams,
-) -> Option<Vec<bool>> {
-    let pts = sample_points(mask, width, height, p.grid_step);
+) -> Option<(Vec<bool>, (f32, f32))> {
+    let mut pts = sample_points(mask, width, height, p.grid_step, p.lk.radius);
+    if pts.len() < 6 {
+        // A thin or small object: its window overlaps the background anyway.
+        pts = sample_points(mask, width, height, p.grid_step, 0);
+    }
     if pts.len() < 6 {
         return None;
     }
-    let fwd = track(prev, cur, &pts, p.lk);
+    let fwd = track(prev, cur, &pts, motion, p.lk);
     let ok: Vec<usize> = (0..pts.len()).filter(|&i| fwd[i].is_some()).collect();
     let there: Vec<(f32, f32)> = ok.iter().map(|&i| fwd[i].unwrap()).collect();
-    let back = track(cur, prev, &there, p.lk);
+    let back = track(cur, prev, &there, (-motion.0, -motion.1), p.lk);
     let (mut src, mut dst) = (Vec::new(), Vec::new());
     for (k, &i) in ok.iter().enumerate() {
         if let Some(b) = back[k] {
@@ -412,6 +471,13 @@ fn follow(
             (a.1 * (1.0 - wx) + b.1 * wx) * (1.0 - wy) + (c.1 * (1.0 - wx) + d.1 * wx) * wy,
         )
     };
+    // Grey-value consistency on the half-resolution level (smoothed, so that
+    // texture and blur do not flip single pixels).
+    let (prev_half, cur_half) = (
+        &prev.levels[1.min(prev.levels.len() - 1)],
+        &cur.levels[1.min(cur.levels.len() - 1)],
+    );
+    let half = prev_half.width as f32 / width as f32;
     let mut out = vec![false; width * height];
     let mut area = 0usize;
     for y in ty0..ty1 {
@@ -425,13 +491,26 @@ fn follow(
                 && (ix as usize) < width
                 && (iy as usize) < height
                 && mask[iy as usize * width + ix as usize]
+                && (cur_half.sample(x as f32 * half, y as f32 * half)
+                    - prev_half.sample(sx * half, sy * half))
+                .abs()
+                    <= p.max_grey_difference
             {
                 out[y * width + x] = true;
                 area += 1;
             }
         }
     }
-    (area >= 30).then_some(out)
+    let n = inliers.iter().filter(|&&k| k).count().max(1) as f32;
+    let moved = src
+        .iter()
+        .zip(&dst)
+        .zip(&inliers)
+        .filter(|(_, &k)| k)
+        .fold((0.0, 0.0), |acc, ((s, d), _)| {
+            (acc.0 + (d.0 - s.0) / n, acc.1 + (d.1 - s.1) / n)
+        });
+    (area >= 30).then_some((out, moved))
 }
 
 impl MaskModel for LkPropagator {

@@ -94,6 +94,31 @@ impl Trajectory {
         Self::parse_tum(&text, path)
     }
 
+    /// The pose at time `t`: linear in translation and spherical-linear in
+    /// rotation between the two bracketing poses (stamps must be sorted);
+    /// `None` outside the trajectory's time span by more than `tolerance` s
+    /// (inside the tolerance the end pose is used).
+    pub fn interpolate(&self, t: f64, tolerance: f64) -> Option<Isometry3<f64>> {
+        let (first, last) = (*self.stamps.first()?, *self.stamps.last()?);
+        if t <= first {
+            return (first - t <= tolerance).then(|| self.poses[0]);
+        }
+        if t >= last {
+            return (t - last <= tolerance).then(|| self.poses[self.len() - 1]);
+        }
+        let hi = self.stamps.partition_point(|&s| s <= t);
+        let (a, b) = (&self.poses[hi - 1], &self.poses[hi]);
+        let span = self.stamps[hi] - self.stamps[hi - 1];
+        let f = if span > 0.0 {
+            (t - self.stamps[hi - 1]) / span
+        } else {
+            0.0
+        };
+        let translation = a.translation.vector.lerp(&b.translation.vector, f);
+        let rotation = a.rotation.slerp(&b.rotation, f);
+        Some(Isometry3::from_parts(translation.into(), rotation))
+    }
+
     /// The trajectory keeping only the poses at `ids`.
     pub fn select(&self, ids: &[usize]) -> Self {
         Self {
@@ -118,6 +143,21 @@ mod tests {
         assert_eq!(t.poses[0].translation.vector.z, 3.0);
         let angle = t.poses[1].rotation.angle();
         assert!((angle - std::f64::consts::FRAC_PI_2).abs() < 1e-6);
+    }
+
+    #[test]
+    fn interpolates_between_and_clamps_near_the_ends() {
+        let t = Trajectory::parse_tum(
+            "1.0 0 0 0 0 0 0 1\n2.0 2 0 0 0 0 0.7071068 0.7071068\n",
+            Path::new("gt.txt"),
+        )
+        .unwrap();
+        let mid = t.interpolate(1.5, 0.01).unwrap();
+        assert!((mid.translation.vector.x - 1.0).abs() < 1e-9);
+        assert!((mid.rotation.angle() - std::f64::consts::FRAC_PI_4).abs() < 1e-6);
+        assert_eq!(t.interpolate(0.995, 0.01).unwrap(), t.poses[0]);
+        assert!(t.interpolate(0.9, 0.01).is_none());
+        assert!(t.interpolate(2.1, 0.01).is_none());
     }
 
     #[test]

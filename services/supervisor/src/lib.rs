@@ -4,6 +4,7 @@
 
 pub mod children;
 pub mod latency;
+pub mod mask_eval;
 pub mod outputs;
 pub mod routing;
 pub mod run;

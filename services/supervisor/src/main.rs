@@ -81,6 +81,60 @@ enum Command {
         #[arg(long)]
         plot: Option<PathBuf>,
     },
+    /// Make a dynamic sequence: people walking through a TUM RGB-D
+    /// sequence, with ground-truth masks (masks/, objects.json).
+    Synth {
+        /// TUM RGB-D folder with groundtruth.txt.
+        input: PathBuf,
+        /// New folder to write (must not exist or be empty).
+        output: PathBuf,
+        /// Number of people.
+        #[arg(long, default_value_t = 2)]
+        objects: usize,
+        /// Walking speed (m/s; each person varies it by +-20 %).
+        #[arg(long, default_value_t = 1.0)]
+        speed: f64,
+        /// Nearest walking distance from the first camera (m); smaller
+        /// covers more of the frame.
+        #[arg(long, default_value_t = 0.7)]
+        near: f64,
+        /// Farthest walking distance (m).
+        #[arg(long, default_value_t = 1.4)]
+        far: f64,
+        /// Height of a person cut-out in the world (m; the cut-outs show
+        /// head to waist).
+        #[arg(long, default_value_t = 0.75)]
+        height: f64,
+        /// Random seed: the same seed gives the same scene.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Synthesise only the first N frames.
+        #[arg(long)]
+        limit: Option<usize>,
+        /// Camera intrinsics and depth scale are read from this config.
+        #[arg(long, default_value = "configs/pipeline.toml")]
+        config: PathBuf,
+    },
+    /// Mask quality against ground truth on a `dynslam synth` sequence:
+    /// segmenter IoU on keyframes, propagator IoU on the frames between.
+    MasksEval {
+        /// A folder written by `dynslam synth`.
+        dataset: PathBuf,
+        /// Segment every Nth frame, propagate the N-1 between.
+        #[arg(long, default_value_t = 11)]
+        keyframe_every: usize,
+        /// Score a person only where it covers at least this many pixels.
+        #[arg(long, default_value_t = 2000)]
+        min_px: usize,
+        /// Evaluate only the first N frames.
+        #[arg(long)]
+        limit: Option<usize>,
+        /// Print the scores as JSON on stdout.
+        #[arg(long)]
+        json: bool,
+        #[arg(long, default_value = "configs/pipeline.toml")]
+        config: PathBuf,
+    },
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -99,6 +153,52 @@ enum Mode {
 fn main() -> ExitCode {
     init_logging();
     let cli = Cli::parse();
+    if let Command::Synth {
+        input,
+        output,
+        objects,
+        speed,
+        near,
+        far,
+        height,
+        seed,
+        limit,
+        config,
+    } = &cli.command
+    {
+        let options = scenes::walkers::WalkOptions {
+            objects: *objects,
+            speed_mps: *speed,
+            near_m: *near,
+            far_m: *far,
+            height_m: *height,
+            seed: *seed,
+        };
+        return match synth(input, output, &options, *limit, config) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                ExitCode::FAILURE
+            }
+        };
+    }
+    if let Command::MasksEval {
+        dataset,
+        keyframe_every,
+        min_px,
+        limit,
+        json,
+        config,
+    } = &cli.command
+    {
+        return match masks_eval(dataset, *keyframe_every, *min_px, *limit, *json, config) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                ExitCode::FAILURE
+            }
+        };
+    }
     if let Command::Eval {
         gt,
         est,
@@ -208,8 +308,89 @@ fn dispatch(command: Command) -> Result<RunSummary> {
             execute(&dir)
         }
         Command::Resume { run_dir } => execute(&run_dir),
-        Command::Eval { .. } => unreachable!("handled in main"),
+        Command::Eval { .. } | Command::Synth { .. } | Command::MasksEval { .. } => {
+            unreachable!("handled in main")
+        }
     }
+}
+
+fn synth(
+    input: &std::path::Path,
+    output: &std::path::Path,
+    options: &scenes::walkers::WalkOptions,
+    limit: Option<usize>,
+    config: &std::path::Path,
+) -> Result<()> {
+    let cfg = PipelineConfig::load(config)?;
+    let camera = scenes::composite::Pinhole {
+        fx: cfg.camera.fx,
+        fy: cfg.camera.fy,
+        cx: cfg.camera.cx,
+        cy: cfg.camera.cy,
+    };
+    let s = scenes::synth::synthesize(
+        input,
+        output,
+        &camera,
+        cfg.source.depth_scale as f64,
+        options,
+        limit,
+    )?;
+    eprintln!(
+        "{} frames, people visible in {}, mean coverage {:.1} %, max {:.1} %",
+        s.frames,
+        s.frames_with_people,
+        100.0 * s.mean_coverage,
+        100.0 * s.max_coverage
+    );
+    println!("{}", output.display());
+    Ok(())
+}
+
+fn masks_eval(
+    dataset: &std::path::Path,
+    keyframe_every: usize,
+    min_px: usize,
+    limit: Option<usize>,
+    json: bool,
+    config: &std::path::Path,
+) -> Result<()> {
+    let cfg = PipelineConfig::load(config)?;
+    let s = supervisor::mask_eval::evaluate(dataset, &cfg, keyframe_every, min_px, limit)?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&s)?);
+        return Ok(());
+    }
+    println!(
+        "{} frames, keyframe every {}, people scored where they cover >= {} px",
+        s.frames, s.keyframe_every, s.min_px
+    );
+    println!(
+        "segmenter  (keyframes)        mean IoU {:.3}  ({} person-frames, p50 {:.1} ms)",
+        s.segmenter_iou, s.segmenter_samples, s.segmenter_ms_p50
+    );
+    println!(
+        "propagator (1..{} after)       mean IoU {:.3}  ({} person-frames, p50 {:.1} ms)",
+        s.keyframe_every - 1,
+        s.propagator_iou,
+        s.propagator_samples,
+        s.propagator_ms_p50
+    );
+    println!(
+        "propagator, people seen on their keyframe  mean IoU {:.3}",
+        s.propagator_iou_prompted
+    );
+    let offsets: Vec<String> = s
+        .propagator_iou_by_offset
+        .iter()
+        .enumerate()
+        .map(|(i, v)| format!("+{}: {v:.3}", i + 1))
+        .collect();
+    println!(
+        "propagator by frames after the keyframe: {}",
+        offsets.join("  ")
+    );
+    Ok(())
 }
 
 fn eval(

@@ -1,0 +1,18 @@
+//! Dynamic scenes with exact ground truth.
+//!
+//! - [`sprites`]: real photographs of people with alpha masks, embedded in
+//!   the binary (public domain / CC0, provenance in `assets/PROVENANCE.md`).
+//! - [`walkers`]: where each person is at a given time: smooth walks at
+//!   about 1 m/s across the view, fixed in the world frame.
+//! - [`composite`]: draws people into one RGB-D frame with depth-consistent
+//!   occlusion and writes their instance ids into a label image.
+//! - [`truth`]: reading those masks back and scoring predicted masks.
+//! - [`synth`]: `dynslam synth`, a TUM folder in, a dynamic TUM folder with
+//!   per-frame ground-truth masks and the objects' paths out.
+
+pub mod composite;
+pub mod rng;
+pub mod sprites;
+pub mod synth;
+pub mod truth;
+pub mod walkers;

@@ -1,0 +1,369 @@
+//! `dynslam synth`: a TUM RGB-D folder in, the same sequence with people
+//! walking through it out, with exact ground truth.
+//!
+//! Output folder: `rgb/`, `depth/` (same file names as the input),
+//! `rgb.txt`, `depth.txt`, `associations.txt`, the input's `groundtruth.txt`
+//! byte for byte (the camera did not change), `masks/` (8-bit PNG, the
+//! instance id of the person seen at each pixel, 0 for none), `masks.txt`
+//! and `objects.json` (options, walkers, and per frame where each person was
+//! drawn and how many pixels it covers). Frames are independent, so they are
+//! rendered on all cores.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Mutex;
+
+use camera_reader::source::{tum_folder, FrameEntry};
+use image::{ImageBuffer, Luma};
+use nalgebra::Isometry3;
+use pipeline::progress::Progress;
+use serde::Serialize;
+use slam::trajectory::Trajectory;
+
+use crate::composite::{place, Canvas, Pinhole, Placement};
+use crate::sprites::{people, Sprite};
+use crate::walkers::{walkers, Stage, WalkOptions, Walker};
+
+#[derive(Debug, thiserror::Error)]
+pub enum SynthError {
+    #[error("{0}")]
+    Source(#[from] camera_reader::source::SourceError),
+    #[error("{0}")]
+    Trajectory(#[from] slam::trajectory::TrajectoryError),
+    #[error("options: {0}")]
+    Options(String),
+    #[error(
+        "output folder {0} exists and is not empty: choose a new folder (nothing was overwritten)"
+    )]
+    OutputNotEmpty(PathBuf),
+    #[error("{path}: {message}")]
+    Io { path: PathBuf, message: String },
+    #[error("{path}: frame without depth: dynslam synth needs an RGB-D sequence")]
+    NoDepth { path: PathBuf },
+    #[error("{path}: {message}")]
+    BadImage { path: PathBuf, message: String },
+}
+
+fn io_err(path: &Path) -> impl Fn(std::io::Error) -> SynthError + '_ {
+    move |e| SynthError::Io {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    }
+}
+
+/// Everything `objects.json` holds.
+#[derive(Debug, Serialize)]
+pub struct SceneRecord {
+    pub input: PathBuf,
+    pub options: WalkOptions,
+    pub sprites: Vec<&'static str>,
+    pub sprite_provenance: &'static str,
+    pub class: &'static str,
+    pub walkers: Vec<Walker>,
+    pub frames: Vec<FrameRecord>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct FrameRecord {
+    pub timestamp: f64,
+    pub rgb: String,
+    pub depth: String,
+    pub mask: String,
+    /// The people drawn into this frame (possibly fully occluded: then
+    /// `visible_px` is 0).
+    pub objects: Vec<ObjectRecord>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct ObjectRecord {
+    #[serde(flatten)]
+    pub placement: Placement,
+    pub visible_px: usize,
+}
+
+/// What a synthesis did, for the command's summary line.
+#[derive(Debug)]
+pub struct SynthSummary {
+    pub frames: usize,
+    pub frames_with_people: usize,
+    pub mean_coverage: f64,
+    pub max_coverage: f64,
+}
+
+/// Synthesises `output` from `input`; see the module documentation.
+pub fn synthesize(
+    input: &Path,
+    output: &Path,
+    camera: &Pinhole,
+    depth_scale: f64,
+    options: &WalkOptions,
+    limit: Option<usize>,
+) -> Result<SynthSummary, SynthError> {
+    options.validate().map_err(SynthError::Options)?;
+    let mut frames = tum_folder(input, 0.02)?;
+    if let Some(n) = limit {
+        frames.truncate(n.max(1));
+    }
+    let gt_path = input.join("groundtruth.txt");
+    let gt = Trajectory::load_tum(&gt_path)?;
+    if output.exists()
+        && std::fs::read_dir(output)
+            .map_err(io_err(output))?
+            .next()
+            .is_some()
+    {
+        return Err(SynthError::OutputNotEmpty(output.to_path_buf()));
+    }
+    for sub in ["rgb", "depth", "masks"] {
+        let dir = output.join(sub);
+        std::fs::create_dir_all(&dir).map_err(io_err(&dir))?;
+    }
+
+    // The camera pose of each frame; frames outside the ground truth's span
+    // keep the nearest pose (people are then placed as seen from there).
+    let poses: Vec<Isometry3<f64>> = frames
+        .iter()
+        .map(|f| {
+            gt.interpolate(f.timestamp, f64::INFINITY)
+                .expect("trajectory is not empty")
+        })
+        .collect();
+    let stage = Stage::from_camera(&poses[0]);
+    let sprites = people();
+    let aspects: Vec<f64> = sprites
+        .iter()
+        .map(|s| s.width() as f64 / s.height() as f64)
+        .collect();
+    let half_fov_tan = camera.cx.max(640.0 - camera.cx) / camera.fx;
+    let walkers = walkers(options, half_fov_tan, &aspects);
+    let t0 = frames[0].timestamp;
+
+    let records: Mutex<Vec<Option<FrameRecord>>> = Mutex::new(vec![None; frames.len()]);
+    let next = AtomicU64::new(0);
+    let failure: Mutex<Option<SynthError>> = Mutex::new(None);
+    let progress = Mutex::new(Progress::new("synth", frames.len() as u64));
+    let done = AtomicU64::new(0);
+    let threads = std::thread::available_parallelism()
+        .map_or(2, |n| n.get())
+        .min(8);
+    std::thread::scope(|scope| {
+        for _ in 0..threads {
+            scope.spawn(|| loop {
+                let k = next.fetch_add(1, Ordering::Relaxed) as usize;
+                if k >= frames.len() || failure.lock().unwrap().is_some() {
+                    break;
+                }
+                let job = FrameJob {
+                    frame: &frames[k],
+                    pose: &poses[k],
+                    t: frames[k].timestamp - t0,
+                    stage: &stage,
+                    walkers: &walkers,
+                    sprites: &sprites,
+                    camera,
+                    depth_scale,
+                    height_m: options.height_m,
+                };
+                match job.render(output) {
+                    Ok(record) => records.lock().unwrap()[k] = Some(record),
+                    Err(e) => {
+                        failure.lock().unwrap().get_or_insert(e);
+                    }
+                }
+                let n = done.fetch_add(1, Ordering::Relaxed) + 1;
+                progress.lock().unwrap().set(n);
+            });
+        }
+    });
+    progress.lock().unwrap().finish();
+    if let Some(e) = failure.into_inner().unwrap() {
+        return Err(e);
+    }
+    let frames_out: Vec<FrameRecord> = records
+        .into_inner()
+        .unwrap()
+        .into_iter()
+        .flatten()
+        .collect();
+
+    write_lists(output, &frames_out)?;
+    let gt_out = output.join("groundtruth.txt");
+    std::fs::copy(&gt_path, &gt_out).map_err(io_err(&gt_out))?;
+    let record = SceneRecord {
+        input: input.to_path_buf(),
+        options: options.clone(),
+        sprites: sprites.iter().map(|s| s.name).collect(),
+        sprite_provenance: "assets/PROVENANCE.md: scikit-image 0.26.0 sample data (astronaut: NASA, public domain; camera: CC0)",
+        class: "person",
+        walkers,
+        frames: frames_out.clone(),
+    };
+    let json_path = output.join("objects.json");
+    let json = serde_json::to_string_pretty(&record).expect("scene record serialises");
+    std::fs::write(&json_path, json).map_err(io_err(&json_path))?;
+
+    let pixels = (frames.len().max(1)) as f64;
+    let coverages: Vec<f64> = frames_out
+        .iter()
+        .map(|f| f.objects.iter().map(|o| o.visible_px).sum::<usize>() as f64 / (640.0 * 480.0))
+        .collect();
+    Ok(SynthSummary {
+        frames: frames_out.len(),
+        frames_with_people: coverages.iter().filter(|&&c| c > 0.0).count(),
+        mean_coverage: coverages.iter().sum::<f64>() / pixels,
+        max_coverage: coverages.iter().cloned().fold(0.0, f64::max),
+    })
+}
+
+struct FrameJob<'a> {
+    frame: &'a FrameEntry,
+    pose: &'a Isometry3<f64>,
+    t: f64,
+    stage: &'a Stage,
+    walkers: &'a [Walker],
+    sprites: &'a [Sprite],
+    camera: &'a Pinhole,
+    depth_scale: f64,
+    height_m: f64,
+}
+
+impl FrameJob<'_> {
+    fn render(&self, output: &Path) -> Result<FrameRecord, SynthError> {
+        let rgb_path = &self.frame.rgb;
+        let depth_path = self
+            .frame
+            .depth
+            .as_ref()
+            .ok_or_else(|| SynthError::NoDepth {
+                path: rgb_path.clone(),
+            })?;
+        let bad = |path: &Path, message: String| SynthError::BadImage {
+            path: path.to_path_buf(),
+            message,
+        };
+        let mut rgb = image::open(rgb_path)
+            .map_err(|e| bad(rgb_path, e.to_string()))?
+            .to_rgb8();
+        let depth_img = image::open(depth_path).map_err(|e| bad(depth_path, e.to_string()))?;
+        let mut depth = match depth_img {
+            image::DynamicImage::ImageLuma16(d) => d,
+            other => {
+                return Err(bad(
+                    depth_path,
+                    format!("depth must be 16-bit grey, found {:?}", other.color()),
+                ))
+            }
+        };
+        let (w, h) = (rgb.width() as usize, rgb.height() as usize);
+        if (depth.width() as usize, depth.height() as usize) != (w, h) {
+            return Err(bad(
+                depth_path,
+                format!(
+                    "{}x{} does not match the colour image's {w}x{h}",
+                    depth.width(),
+                    depth.height()
+                ),
+            ));
+        }
+        let placements: Vec<Placement> = self
+            .walkers
+            .iter()
+            .filter_map(|walker| {
+                let s = walker.state(self.stage, self.t);
+                place(
+                    walker.id,
+                    walker.sprite,
+                    s.leftwards,
+                    &s.centre,
+                    &self.stage.up,
+                    self.height_m,
+                    self.pose,
+                    self.camera,
+                )
+            })
+            .collect();
+        let mut labels = vec![0u8; w * h];
+        let visible = {
+            let mut canvas = Canvas {
+                width: w,
+                height: h,
+                rgb: &mut rgb,
+                depth: &mut depth,
+                labels: &mut labels,
+                depth_scale: self.depth_scale,
+            };
+            canvas.draw(&placements, self.sprites)
+        };
+        let name = |p: &Path| {
+            p.file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default()
+        };
+        let (rgb_rel, depth_rel) = (
+            format!("rgb/{}", name(rgb_path)),
+            format!("depth/{}", name(depth_path)),
+        );
+        let mask_rel = format!("masks/{}", name(rgb_path));
+        let save_err = |p: PathBuf| {
+            move |e: image::ImageError| SynthError::Io {
+                path: p,
+                message: e.to_string(),
+            }
+        };
+        rgb.save(output.join(&rgb_rel))
+            .map_err(save_err(output.join(&rgb_rel)))?;
+        depth
+            .save(output.join(&depth_rel))
+            .map_err(save_err(output.join(&depth_rel)))?;
+        ImageBuffer::<Luma<u8>, _>::from_raw(w as u32, h as u32, labels)
+            .expect("label buffer has the frame's size")
+            .save(output.join(&mask_rel))
+            .map_err(save_err(output.join(&mask_rel)))?;
+        Ok(FrameRecord {
+            timestamp: self.frame.timestamp,
+            rgb: rgb_rel,
+            depth: depth_rel,
+            mask: mask_rel,
+            objects: placements
+                .into_iter()
+                .zip(visible)
+                .map(|(placement, visible_px)| ObjectRecord {
+                    placement,
+                    visible_px,
+                })
+                .collect(),
+        })
+    }
+}
+
+/// rgb.txt, depth.txt, associations.txt and masks.txt. The depth
+/// timestamps are the colour frame's: the pair was associated on input and
+/// is rendered as one instant.
+fn write_lists(output: &Path, frames: &[FrameRecord]) -> Result<(), SynthError> {
+    let header = "# dynslam synth: people composited over a TUM RGB-D sequence (see objects.json)\n# timestamp filename\n";
+    let mut rgb = String::from(header);
+    let mut depth = String::from(header);
+    let mut masks = String::from(
+        "# dynslam synth: ground-truth instance ids (0: none)\n# timestamp filename\n",
+    );
+    let mut assoc = String::new();
+    for f in frames {
+        rgb += &format!("{:.6} {}\n", f.timestamp, f.rgb);
+        depth += &format!("{:.6} {}\n", f.timestamp, f.depth);
+        masks += &format!("{:.6} {}\n", f.timestamp, f.mask);
+        assoc += &format!(
+            "{:.6} {} {:.6} {}\n",
+            f.timestamp, f.rgb, f.timestamp, f.depth
+        );
+    }
+    for (name, text) in [
+        ("rgb.txt", rgb),
+        ("depth.txt", depth),
+        ("masks.txt", masks),
+        ("associations.txt", assoc),
+    ] {
+        let p = output.join(name);
+        std::fs::write(&p, text).map_err(io_err(&p))?;
+    }
+    Ok(())
+}

@@ -1,0 +1,137 @@
+//! `dynslam masks-eval`: how good the masks are, against a synthesised
+//! sequence's ground truth, with the product's models outside the pipeline.
+//!
+//! Every `keyframe_every`-th frame is segmented (the segmenter's score),
+//! the frames between are propagated from it (the propagator's score, per
+//! distance from the keyframe), exactly as the pipeline's routing would do
+//! with a fixed keyframe interval. Scores are per ground-truth person, see
+//! [`scenes::truth`].
+
+use std::path::Path;
+
+use anyhow::{bail, Context, Result};
+use camera_reader::source::tum_folder;
+use pipeline::config::PipelineConfig;
+use pipeline::progress::Progress;
+use propagator::propagate::{LkPropagator, PropagatorParams};
+use scenes::truth::{instance_ious, TruthMasks};
+use segmenter::onnx::{init_runtime, YoloSeg, YoloSettings};
+use serde::Serialize;
+
+#[derive(Debug, Clone, Serialize)]
+pub struct MaskScores {
+    pub frames: usize,
+    pub keyframe_every: usize,
+    pub min_px: usize,
+    /// Mean IoU of the segmenter on keyframes (over scored people).
+    pub segmenter_iou: f64,
+    pub segmenter_samples: usize,
+    /// Mean IoU of the propagator on all frames between keyframes.
+    pub propagator_iou: f64,
+    pub propagator_samples: usize,
+    /// Mean propagator IoU by distance from the keyframe (index 0: 1 frame after).
+    pub propagator_iou_by_offset: Vec<f64>,
+    /// Mean propagator IoU over people who were already scored on the
+    /// prompting keyframe (a person entering later cannot be propagated).
+    pub propagator_iou_prompted: f64,
+    pub segmenter_ms_p50: f64,
+    pub propagator_ms_p50: f64,
+}
+
+fn mean(v: &[f64]) -> f64 {
+    if v.is_empty() {
+        f64::NAN
+    } else {
+        v.iter().sum::<f64>() / v.len() as f64
+    }
+}
+
+/// Scores segmenter and propagator on `dataset` (a `dynslam synth` folder).
+pub fn evaluate(
+    dataset: &Path,
+    config: &PipelineConfig,
+    keyframe_every: usize,
+    min_px: usize,
+    limit: Option<usize>,
+) -> Result<MaskScores> {
+    if keyframe_every < 2 {
+        bail!("--keyframe-every {keyframe_every}: must be at least 2 (a keyframe and a propagated frame)");
+    }
+    let truth = TruthMasks::open(dataset)?.with_context(|| {
+        format!(
+            "{} has no masks.txt: masks-eval needs a sequence made by `dynslam synth`",
+            dataset.display()
+        )
+    })?;
+    let mut frames = tum_folder(dataset, config.source.max_time_diff)?;
+    if let Some(n) = limit {
+        frames.truncate(n);
+    }
+    let settings = YoloSettings::from_config(&config.services.segmenter)?;
+    let mut segmenter = YoloSeg::load(init_runtime(&config.onnxruntime)?, settings)?;
+    let mut propagator = LkPropagator::new(PropagatorParams::default());
+
+    let mut seg_iou = Vec::new();
+    let mut prop_iou = Vec::new();
+    let mut prompted_iou = Vec::new();
+    let mut by_offset = vec![Vec::new(); keyframe_every - 1];
+    let (mut seg_ms, mut prop_ms) = (Vec::new(), Vec::new());
+    let mut prompted_ids: Vec<u8> = Vec::new();
+    let mut progress = Progress::new("masks-eval", frames.len() as u64);
+    for (k, frame) in frames.iter().enumerate() {
+        let rgb = image::open(&frame.rgb)
+            .with_context(|| frame.rgb.display().to_string())?
+            .to_rgb8();
+        let (w, h) = (rgb.width() as usize, rgb.height() as usize);
+        let gt = truth
+            .load_at(frame.timestamp)
+            .with_context(|| format!("masks.txt lists no mask for frame {:.6}", frame.timestamp))?
+            .map_err(anyhow::Error::msg)?;
+        if (gt.width() as usize, gt.height() as usize) != (w, h) {
+            bail!(
+                "mask of frame {:.6} is {}x{}, the frame {w}x{h}",
+                frame.timestamp,
+                gt.width(),
+                gt.height()
+            );
+        }
+        let mut labels = vec![0u8; w * h];
+        let offset = k % keyframe_every;
+        let t = std::time::Instant::now();
+        if offset == 0 {
+            let instances = segmenter.segment(rgb.as_raw(), w, h, &mut labels)?;
+            seg_ms.push(t.elapsed().as_secs_f64() * 1e3);
+            propagator.prompt_with(rgb.as_raw(), w, h, &labels, &instances);
+            let scores = instance_ious(&labels, gt.as_raw(), min_px);
+            prompted_ids = scores.iter().map(|s| s.id).collect();
+            seg_iou.extend(scores.iter().map(|s| s.iou));
+        } else {
+            propagator.propagate(rgb.as_raw(), w, h, &mut labels);
+            prop_ms.push(t.elapsed().as_secs_f64() * 1e3);
+            for s in instance_ious(&labels, gt.as_raw(), min_px) {
+                prop_iou.push(s.iou);
+                by_offset[offset - 1].push(s.iou);
+                if prompted_ids.contains(&s.id) {
+                    prompted_iou.push(s.iou);
+                }
+            }
+        }
+        progress.inc();
+    }
+    progress.finish();
+    seg_ms.sort_by(f64::total_cmp);
+    prop_ms.sort_by(f64::total_cmp);
+    Ok(MaskScores {
+        frames: frames.len(),
+        keyframe_every,
+        min_px,
+        segmenter_iou: mean(&seg_iou),
+        segmenter_samples: seg_iou.len(),
+        propagator_iou: mean(&prop_iou),
+        propagator_samples: prop_iou.len(),
+        propagator_iou_by_offset: by_offset.iter().map(|v| mean(v)).collect(),
+        propagator_iou_prompted: mean(&prompted_iou),
+        segmenter_ms_p50: pipeline::stats::percentile(&seg_ms, 50.0),
+        propagator_ms_p50: pipeline::stats::percentile(&prop_ms, 50.0),
+    })
+}

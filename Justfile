@@ -68,6 +68,21 @@ bench-models: build setup
     ./target/release/segmenter-bench --threads 2
     ./target/release/propagator-bench
 
+# SLAM core speed and accuracy on a TUM folder (default: the shared sequence): ms per frame per step, peak memory, ATE.
+bench-slam dataset=tum *args="": build
+    ./target/release/slam-bench "{{dataset}}" {{args}}
+
+# Mask quality against ground truth on a synthesised sequence (made first if missing): segmenter and propagator IoU.
+eval-masks: build setup
+    #!/usr/bin/env bash
+    set -euo pipefail
+    seq=.cache/synth/fr1_rpy_people
+    if [ ! -f "$seq/objects.json" ]; then
+        rm -rf "$seq"
+        ./target/release/dynslam synth "{{tum}}" "$seq" --objects 3 --seed 5
+    fi
+    ./target/release/dynslam masks-eval "$seq"
+
 # Transport benchmark: iceoryx2 zero-copy vs a Unix-socket copy (writes bench-results/transport.json).
 bench: build
     ./target/release/transport-bench --out bench-results/transport.json

@@ -14,7 +14,11 @@ fn synth(out: &Path, extra: &[&str]) -> std::process::Output {
         .arg(shared_tum())
         .arg(out)
         .args(["--limit", "60", "--objects", "3"])
-        .args(if extra.is_empty() { &["--seed", "4"] } else { extra })
+        .args(if extra.is_empty() {
+            &["--seed", "4"]
+        } else {
+            extra
+        })
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()
         .unwrap()

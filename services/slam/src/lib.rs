@@ -2,8 +2,10 @@
 //! get poses. The SLAM service (`main.rs`) is a thin shell around a
 //! [`tracker::Tracker`].
 
+pub mod core;
 pub mod eval;
 pub mod plot;
+pub mod rgbd_tracker;
 pub mod scripted;
 pub mod tracker;
 pub mod trajectory;

@@ -23,6 +23,7 @@ use shared_types::{
     frame_flags, mask_flags, FrameHeader, MasksHeader, Route, RouteKind, ServiceKind, StageStamps,
     Track, TrackState,
 };
+use slam::rgbd_tracker::RgbdTracker;
 use slam::scripted::ScriptedTracker;
 use slam::tracker::{TrackInput, Tracker};
 
@@ -50,8 +51,9 @@ fn tracker_from_config(ctx: &ServiceContext) -> Result<Box<dyn Tracker>> {
             Duration::from_millis(cfg.work_ms),
             cfg.seen_log.clone(),
         ))),
+        "orb-rgbd" => Ok(Box::new(RgbdTracker::new(&ctx.config))),
         other => Err(InputError(format!(
-            "key `services.slam.backend`: unknown backend '{other}' (known: scripted)"
+            "key `services.slam.backend`: unknown backend '{other}' (known: orb-rgbd, scripted)"
         ))
         .into()),
     }

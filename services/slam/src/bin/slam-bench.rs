@@ -1,0 +1,165 @@
+//! SLAM core on a TUM RGB-D folder without the pipeline: per-step time
+//! (extract, track, total: median and p99 ms), peak memory, frames tracked
+//! and, with ground truth, ATE. `just bench-slam` runs it on the shared
+//! sequence.
+//!
+//! `slam-bench [DATASET] [--masks] [--limit N] [--verbose] [--out trajectory.txt]`
+//! `--masks` feeds the ground-truth masks of a `dynslam synth` folder.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use camera_reader::source::tum_folder;
+use clap::Parser;
+use pipeline::config::PipelineConfig;
+use pipeline::progress::Progress;
+use pipeline::stats::percentile;
+use shared_types::TrackState;
+use slam::core::camera::Camera;
+use slam::core::system::{SlamParams, System};
+use slam::eval::{evaluate_files, EvalOptions};
+
+#[derive(Debug, Parser)]
+#[command(about = "SLAM core: ms per frame per step, tracking and accuracy")]
+struct Args {
+    #[arg(default_value = "../shared/data/tum/rgbd_dataset_freiburg1_rpy_first300")]
+    dataset: PathBuf,
+    #[arg(long, default_value = "configs/pipeline.toml")]
+    config: PathBuf,
+    /// Use the ground-truth masks (masks.txt) of a synthesised sequence.
+    #[arg(long)]
+    masks: bool,
+    #[arg(long)]
+    limit: Option<usize>,
+    /// Print every frame's state, features, inliers and keyframe flag.
+    #[arg(long)]
+    verbose: bool,
+    #[arg(long, default_value = "bench-results/slam_trajectory.txt")]
+    out: PathBuf,
+}
+
+fn main() -> Result<()> {
+    let args = Args::parse();
+    let cfg = PipelineConfig::load(&args.config)?;
+    let camera = Camera::from_config(&cfg.camera, cfg.source.depth_scale as f64);
+    let mut frames = tum_folder(&args.dataset, cfg.source.max_time_diff)?;
+    if let Some(n) = args.limit {
+        frames.truncate(n);
+    }
+    let truth = if args.masks {
+        Some(scenes_masks(&args.dataset)?)
+    } else {
+        None
+    };
+    let mut system = System::new(SlamParams::default(), camera);
+    let (mut extract, mut track, mut total) = (Vec::new(), Vec::new(), Vec::new());
+    let mut lines = String::new();
+    let mut tracked = 0;
+    let mut progress = Progress::new("slam", frames.len() as u64);
+    for f in &frames {
+        let rgb = image::open(&f.rgb)
+            .with_context(|| f.rgb.display().to_string())?
+            .to_rgb8();
+        let depth_path = f.depth.as_ref().context("frame without depth")?;
+        let depth = image::open(depth_path)
+            .with_context(|| depth_path.display().to_string())?
+            .into_luma16();
+        let mask = match &truth {
+            Some(t) => Some(load_mask_at(t, f.timestamp)?),
+            None => None,
+        };
+        let (w, h) = (rgb.width() as usize, rgb.height() as usize);
+        let r = system.track_rgbd(rgb.as_raw(), depth.as_raw(), mask.as_deref(), w, h);
+        if args.verbose {
+            eprintln!(
+                "{:.3} {:?} feat {} inl {} kf {} pts {}",
+                f.timestamp,
+                r.state,
+                r.counts.features,
+                r.counts.inliers,
+                r.keyframe_inserted,
+                r.counts.map_points
+            );
+        }
+        extract.push(r.extract_ms);
+        track.push(r.track_ms);
+        total.push(r.extract_ms + r.track_ms);
+        if matches!(r.state, TrackState::Ok | TrackState::Relocalised) {
+            tracked += 1;
+        }
+        let (t, q) = (r.pose_wc.translation.vector, r.pose_wc.rotation);
+        lines += &format!(
+            "{:.6} {:.6} {:.6} {:.6} {:.6} {:.6} {:.6} {:.6}\n",
+            f.timestamp, t.x, t.y, t.z, q.i, q.j, q.k, q.w
+        );
+        progress.inc();
+    }
+    progress.finish();
+    if let Some(dir) = args.out.parent() {
+        std::fs::create_dir_all(dir)?;
+    }
+    std::fs::write(&args.out, lines)?;
+    for v in [&mut extract, &mut track, &mut total] {
+        v.sort_by(f64::total_cmp);
+    }
+    println!(
+        "SLAM core on {} ({} frames, masks: {})",
+        args.dataset.display(),
+        frames.len(),
+        if args.masks { "ground truth" } else { "none" }
+    );
+    println!("{:<10} {:>9} {:>9}", "step", "p50 ms", "p99 ms");
+    for (name, v) in [("extract", &extract), ("track", &track), ("total", &total)] {
+        println!(
+            "{:<10} {:>9.2} {:>9.2}",
+            name,
+            percentile(v, 50.0),
+            percentile(v, 99.0)
+        );
+    }
+    println!(
+        "tracked {tracked}/{} frames ({:.1} %), {} keyframes, {} map points",
+        frames.len(),
+        100.0 * tracked as f64 / frames.len().max(1) as f64,
+        system.keyframes.len(),
+        system.points.len()
+    );
+    println!("peak memory (VmHWM) {:.1} MiB", peak_rss_mib());
+    let gt = args.dataset.join("groundtruth.txt");
+    if gt.is_file() {
+        let s = evaluate_files(&gt, &args.out, EvalOptions::default())?;
+        println!(
+            "ATE rmse {:.4} m ({} pairs), RPE/frame {:.4} m {:.3} deg",
+            s.ate_rmse_m, s.pairs, s.rpe_trans_rmse_m, s.rpe_rot_rmse_deg
+        );
+    }
+    println!("trajectory: {}", args.out.display());
+    Ok(())
+}
+
+fn scenes_masks(folder: &std::path::Path) -> Result<Vec<(f64, PathBuf)>> {
+    let list = camera_reader::source::read_list(folder, "masks.txt")?;
+    Ok(list.entries)
+}
+
+fn load_mask_at(list: &[(f64, PathBuf)], t: f64) -> Result<Vec<u8>> {
+    let (_, p) = list
+        .iter()
+        .find(|(s, _)| (s - t).abs() < 1e-5)
+        .with_context(|| format!("masks.txt has no mask for {t:.6}"))?;
+    Ok(image::open(p)
+        .with_context(|| p.display().to_string())?
+        .to_luma8()
+        .into_raw())
+}
+
+fn peak_rss_mib() -> f64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmHWM:"))
+                .and_then(|l| l.split_whitespace().nth(1)?.parse::<f64>().ok())
+        })
+        .map_or(f64::NAN, |kb| kb / 1024.0)
+}

@@ -1,0 +1,712 @@
+//! The RGB-D SLAM system: `System::track_rgbd` per frame.
+//!
+//! Tracking as ORB-SLAM2 does it for RGB-D: ORB features outside the
+//! (dilated) dynamic mask, undistorted; the constant-velocity motion model
+//! predicts the pose, map points are matched by projection and the pose is
+//! optimised (motion only, robust); if that fails the last pose is tried with
+//! a wider search; then the local map (points of the recent keyframes) is
+//! matched by projection and the pose optimised again. A lost frame triggers
+//! relocalisation: descriptor matches against recent keyframes, 3D-3D RANSAC
+//! on the depth of both sides, then pose optimisation.
+//!
+//! Keyframes are decided as ORB-SLAM2 decides them (tracked points against
+//! the reference keyframe, frames since the last keyframe) and create new
+//! map points from the depth of the keypoints no map point explains.
+//! Not here yet (see the issue notes): the local-mapping thread with
+//! covisibility graph, triangulation between keyframes, local bundle
+//! adjustment and keyframe culling.
+
+use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use shared_types::{TrackCounts, TrackState};
+
+use super::camera::Camera;
+use super::optimize::{optimize_pose, renormalized, Observation};
+use super::orb::{hamming, Descriptor, GrayU8, KeyPoint, OrbExtractor, OrbParams};
+
+#[derive(Debug, Clone, Copy)]
+pub struct SlamParams {
+    pub orb: OrbParams,
+    /// Keypoints with depth in this range (metres) get 3D measurements.
+    pub min_depth_m: f64,
+    pub max_depth_m: f64,
+    /// Dynamic masks are grown by this many pixels before filtering.
+    pub mask_dilation_px: usize,
+    /// Keyframes whose points form the local map.
+    pub local_keyframes: usize,
+    /// A keyframe at the latest after this many frames.
+    pub max_frames_between_keyframes: u32,
+    /// Fewer inliers than this: the frame is lost.
+    pub min_inliers: usize,
+}
+
+impl Default for SlamParams {
+    fn default() -> Self {
+        Self {
+            orb: OrbParams::default(),
+            min_depth_m: 0.1,
+            max_depth_m: 6.0,
+            mask_dilation_px: 5,
+            local_keyframes: 20,
+            max_frames_between_keyframes: 30,
+            min_inliers: 25,
+        }
+    }
+}
+
+#[derive(Debug, Clone)]
+pub struct MapPoint {
+    pub position: Vector3<f64>,
+    pub descriptor: Descriptor,
+    /// Last keyframe that created or observed it.
+    pub last_keyframe: usize,
+    /// Frames in which it was predicted visible / actually matched.
+    pub visible: u32,
+    pub found: u32,
+}
+
+#[derive(Debug, Clone)]
+pub struct KeyFrame {
+    pub timestamp: f64,
+    /// Camera from world.
+    pub pose_cw: Isometry3<f64>,
+    /// Points this keyframe observes (ids into the map).
+    pub points: Vec<usize>,
+}
+
+/// One frame's features.
+struct Frame {
+    kps: Vec<KeyPoint>,
+    /// Undistorted keypoint pixels.
+    un: Vec<(f64, f64)>,
+    descs: Vec<Descriptor>,
+    depth: Vec<Option<f64>>,
+    grid: Grid,
+}
+
+/// Keypoints bucketed by undistorted position, for radius search.
+struct Grid {
+    cell: f64,
+    cols: usize,
+    rows: usize,
+    cells: Vec<Vec<usize>>,
+}
+
+impl Grid {
+    fn new(un: &[(f64, f64)], width: usize, height: usize) -> Self {
+        let cell = 16.0;
+        let (cols, rows) = (width.div_ceil(16) + 2, height.div_ceil(16) + 2);
+        let mut cells = vec![Vec::new(); cols * rows];
+        for (i, &(u, v)) in un.iter().enumerate() {
+            if let Some(c) = Self::index(cell, cols, rows, u, v) {
+                cells[c].push(i);
+            }
+        }
+        Self {
+            cell,
+            cols,
+            rows,
+            cells,
+        }
+    }
+
+    fn index(cell: f64, cols: usize, rows: usize, u: f64, v: f64) -> Option<usize> {
+        let (cx, cy) = ((u / cell).floor() + 1.0, (v / cell).floor() + 1.0);
+        (cx >= 0.0 && cy >= 0.0 && (cx as usize) < cols && (cy as usize) < rows)
+            .then(|| cy as usize * cols + cx as usize)
+    }
+
+    fn near(&self, u: f64, v: f64, r: f64, out: &mut Vec<usize>) {
+        out.clear();
+        let (x0, x1) = (
+            ((u - r) / self.cell).floor() + 1.0,
+            ((u + r) / self.cell).floor() + 1.0,
+        );
+        let (y0, y1) = (
+            ((v - r) / self.cell).floor() + 1.0,
+            ((v + r) / self.cell).floor() + 1.0,
+        );
+        for cy in y0.max(0.0) as usize..=(y1.max(0.0) as usize).min(self.rows - 1) {
+            for cx in x0.max(0.0) as usize..=(x1.max(0.0) as usize).min(self.cols - 1) {
+                out.extend_from_slice(&self.cells[cy * self.cols + cx]);
+            }
+        }
+    }
+}
+
+/// What one call of `track_rgbd` reports.
+#[derive(Debug, Clone)]
+pub struct FrameResult {
+    /// World from camera.
+    pub pose_wc: Isometry3<f64>,
+    pub state: TrackState,
+    pub keyframe_inserted: bool,
+    pub next_needs_keyframe: bool,
+    pub counts: TrackCounts,
+    pub extract_ms: f64,
+    pub track_ms: f64,
+}
+
+pub struct System {
+    pub params: SlamParams,
+    camera: Camera,
+    extractor: OrbExtractor,
+    pub points: Vec<MapPoint>,
+    pub keyframes: Vec<KeyFrame>,
+    /// Camera from world of the last tracked frame, and the motion since the one before.
+    last_pose: Option<Isometry3<f64>>,
+    velocity: Option<Isometry3<f64>>,
+    frames_since_keyframe: u32,
+    /// Inliers of the frame that made the last keyframe.
+    reference_inliers: usize,
+    lost: bool,
+}
+
+fn to_ms(t: std::time::Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+impl System {
+    pub fn new(params: SlamParams, camera: Camera) -> Self {
+        Self {
+            extractor: OrbExtractor::new(params.orb),
+            params,
+            camera,
+            points: Vec::new(),
+            keyframes: Vec::new(),
+            last_pose: None,
+            velocity: None,
+            frames_since_keyframe: 0,
+            reference_inliers: 0,
+            lost: false,
+        }
+    }
+
+    /// Tracks one RGB-D frame. `rgb` is RGB8, `depth` u16 in
+    /// `camera.depth_scale` units per metre (0: no depth), `mask` an optional
+    /// label image (non-zero: dynamic object). Never panics on odd input:
+    /// blank, depthless or fully masked frames come back LOST (or
+    /// NOT_INITIALISED before the map exists).
+    pub fn track_rgbd(
+        &mut self,
+        rgb: &[u8],
+        depth: &[u16],
+        mask: Option<&[u8]>,
+        width: usize,
+        height: usize,
+    ) -> FrameResult {
+        let t0 = std::time::Instant::now();
+        let pixels = width * height;
+        if width < 64
+            || height < 64
+            || rgb.len() != 3 * pixels
+            || depth.len() != pixels
+            || mask.is_some_and(|m| m.len() != pixels)
+        {
+            return FrameResult {
+                pose_wc: self.last_pose.unwrap_or_else(Isometry3::identity).inverse(),
+                state: TrackState::Skipped,
+                keyframe_inserted: false,
+                next_needs_keyframe: false,
+                counts: TrackCounts::default(),
+                extract_ms: 0.0,
+                track_ms: 0.0,
+            };
+        }
+        let gray = GrayU8::from_rgb(rgb, width, height);
+        let dilated = mask.map(|m| dilate(m, width, height, self.params.mask_dilation_px));
+        let keep = |x: f32, y: f32| match &dilated {
+            Some(m) => {
+                let (xi, yi) = ((x as usize).min(width - 1), (y as usize).min(height - 1));
+                !m[yi * width + xi]
+            }
+            None => true,
+        };
+        let (kps, descs, masked) = self.extractor.extract(&gray, &keep);
+        let un: Vec<(f64, f64)> = kps
+            .iter()
+            .map(|k| self.camera.undistort(k.x as f64, k.y as f64))
+            .collect();
+        let depth_of = |k: &KeyPoint| {
+            let (x, y) = (
+                (k.x.round() as usize).min(width - 1),
+                (k.y.round() as usize).min(height - 1),
+            );
+            let d = depth.get(y * width + x).copied().unwrap_or(0) as f64 / self.camera.depth_scale;
+            (d >= self.params.min_depth_m && d <= self.params.max_depth_m).then_some(d)
+        };
+        let depths: Vec<Option<f64>> = kps.iter().map(depth_of).collect();
+        let grid = Grid::new(&un, width, height);
+        let frame = Frame {
+            kps,
+            un,
+            descs,
+            depth: depths,
+            grid,
+        };
+        let extract_ms = to_ms(t0);
+        let t1 = std::time::Instant::now();
+
+        let mut counts = TrackCounts {
+            features: frame.kps.len() as u32,
+            features_masked: masked as u32,
+            ..Default::default()
+        };
+        let (state, pose_cw, inliers, matched) = if self.keyframes.is_empty() {
+            match self.initialise(&frame) {
+                true => (
+                    TrackState::Ok,
+                    Isometry3::identity(),
+                    frame.kps.len(),
+                    Vec::new(),
+                ),
+                false => (
+                    TrackState::NotInitialised,
+                    Isometry3::identity(),
+                    0,
+                    Vec::new(),
+                ),
+            }
+        } else {
+            self.track(&frame)
+        };
+        let mut keyframe_inserted = self.keyframes.len() == 1
+            && self.frames_since_keyframe == 0
+            && state == TrackState::Ok
+            && self.last_pose.is_none();
+        if matches!(state, TrackState::Ok | TrackState::Relocalised) {
+            if let Some(last) = self.last_pose {
+                self.velocity = Some(renormalized(&(pose_cw * last.inverse())));
+            }
+            self.last_pose = Some(pose_cw);
+            self.lost = false;
+            if !keyframe_inserted && self.need_keyframe(inliers, &frame, &matched) {
+                self.insert_keyframe(&frame, &pose_cw, &matched, inliers);
+                keyframe_inserted = true;
+            } else if !keyframe_inserted {
+                self.frames_since_keyframe += 1;
+            }
+        } else if !self.keyframes.is_empty() {
+            self.lost = true;
+            self.velocity = None;
+        }
+        counts.inliers = inliers as u32;
+        counts.map_points = self.points.len() as u32;
+        counts.keyframes = self.keyframes.len() as u32;
+        let next_needs_keyframe = !keyframe_inserted
+            && (self.lost
+                || self.frames_since_keyframe + 1 >= self.params.max_frames_between_keyframes
+                || (inliers as f64) < 0.85 * self.reference_inliers as f64);
+        let pose_for_output = self.last_pose.unwrap_or(pose_cw);
+        FrameResult {
+            pose_wc: pose_for_output.inverse(),
+            state,
+            keyframe_inserted,
+            next_needs_keyframe,
+            counts,
+            extract_ms,
+            track_ms: to_ms(t1),
+        }
+    }
+
+    fn initialise(&mut self, frame: &Frame) -> bool {
+        let with_depth = frame.depth.iter().filter(|d| d.is_some()).count();
+        if with_depth < 100 {
+            return false;
+        }
+        let pose = Isometry3::identity();
+        self.insert_keyframe(frame, &pose, &vec![None; frame.kps.len()], with_depth);
+        true
+    }
+
+    /// Returns state, pose (camera from world), inliers and, per keypoint,
+    /// the map point it was matched to (inliers only).
+    fn track(&mut self, frame: &Frame) -> (TrackState, Isometry3<f64>, usize, Vec<Option<usize>>) {
+        let local = self.local_points();
+        if let Some(last) = self.last_pose.filter(|_| !self.lost) {
+            let predicted = self.velocity.map_or(last, |v| renormalized(&(v * last)));
+            for (start, radius) in [(predicted, 15.0), (last, 30.0)] {
+                if let Some((pose, matched, n)) = self.track_from(frame, &local, &start, radius) {
+                    return (TrackState::Ok, pose, n, matched);
+                }
+            }
+        }
+        match self.relocalise(frame) {
+            Some(start) => match self.track_from(frame, &local_all(&self.points), &start, 10.0) {
+                Some((pose, matched, n)) => (TrackState::Relocalised, pose, n, matched),
+                None => (TrackState::Lost, start, 0, Vec::new()),
+            },
+            None => (
+                TrackState::Lost,
+                self.last_pose.unwrap_or_else(Isometry3::identity),
+                0,
+                Vec::new(),
+            ),
+        }
+    }
+
+    /// Two passes of match-by-projection and pose optimisation: wide from
+    /// `start`, then narrow from the first estimate.
+    fn track_from(
+        &mut self,
+        frame: &Frame,
+        local: &[usize],
+        start: &Isometry3<f64>,
+        radius: f64,
+    ) -> Option<(Isometry3<f64>, Vec<Option<usize>>, usize)> {
+        let mut pose = *start;
+        let mut matched = Vec::new();
+        let mut n = 0;
+        for (pass, r) in [radius, 6.0].into_iter().enumerate() {
+            matched = self.match_by_projection(frame, local, &pose, r, pass == 1);
+            let ids: Vec<(usize, usize)> = matched
+                .iter()
+                .enumerate()
+                .filter_map(|(k, m)| m.map(|p| (k, p)))
+                .collect();
+            if ids.len() < self.params.min_inliers {
+                return None;
+            }
+            let obs: Vec<Observation> = ids
+                .iter()
+                .map(|&(k, p)| {
+                    let (u, v) = frame.un[k];
+                    let sigma = self.extractor.scale(frame.kps[k].level) as f64;
+                    Observation {
+                        world: self.points[p].position,
+                        u,
+                        v,
+                        ur: frame.depth[k].map(|d| u - self.camera.bf / d),
+                        info: 1.0 / (sigma * sigma),
+                    }
+                })
+                .collect();
+            let (optimised, inlier) = optimize_pose(&self.camera, &pose, &obs);
+            n = inlier.iter().filter(|&&b| b).count();
+            let finite = optimised
+                .translation
+                .vector
+                .iter()
+                .chain(optimised.rotation.coords.iter())
+                .all(|x| x.is_finite());
+            if n < self.params.min_inliers || !finite {
+                return None;
+            }
+            pose = optimised;
+            for (j, &(k, p)) in ids.iter().enumerate() {
+                if !inlier[j] {
+                    matched[k] = None;
+                } else if pass == 1 {
+                    self.points[p].found += 1;
+                }
+            }
+        }
+        Some((pose, matched, n))
+    }
+
+    fn local_points(&self) -> Vec<usize> {
+        let first = self
+            .keyframes
+            .len()
+            .saturating_sub(self.params.local_keyframes);
+        (0..self.points.len())
+            .filter(|&i| self.points[i].last_keyframe >= first)
+            .collect()
+    }
+
+    /// For each keypoint, the best map point projecting within `radius`
+    /// with a descriptor distance below the threshold (each map point used
+    /// once, the closer descriptor wins).
+    fn match_by_projection(
+        &mut self,
+        frame: &Frame,
+        local: &[usize],
+        pose: &Isometry3<f64>,
+        radius: f64,
+        count_visible: bool,
+    ) -> Vec<Option<usize>> {
+        const MAX_DISTANCE: u32 = 50;
+        let mut best: Vec<Option<(usize, u32)>> = vec![None; frame.kps.len()];
+        let mut near = Vec::new();
+        for &p in local {
+            let pc = pose * Point3::from(self.points[p].position);
+            if pc.z < self.params.min_depth_m {
+                continue;
+            }
+            let (u, v) = self.camera.project(&pc.coords);
+            if !(0.0..640.0 * 2.0).contains(&u) || !(0.0..480.0 * 2.0).contains(&v) {
+                continue;
+            }
+            // Coarse-level keypoints are located less precisely: the window
+            // grows with their scale (up to 2x here).
+            frame.grid.near(u, v, 2.0 * radius, &mut near);
+            if near.is_empty() {
+                continue;
+            }
+            if count_visible {
+                self.points[p].visible += 1;
+            }
+            let mut cand: Option<(usize, u32)> = None;
+            for &k in &near {
+                let (ku, kv) = frame.un[k];
+                let r = radius * (self.extractor.scale(frame.kps[k].level) as f64).min(2.0);
+                if (ku - u).powi(2) + (kv - v).powi(2) > r * r {
+                    continue;
+                }
+                let d = hamming(&self.points[p].descriptor, &frame.descs[k]);
+                if d <= MAX_DISTANCE && cand.is_none_or(|c| d < c.1) {
+                    cand = Some((k, d));
+                }
+            }
+            if let Some((k, d)) = cand {
+                if best[k].is_none_or(|b| d < b.1) {
+                    best[k] = Some((p, d));
+                }
+            }
+        }
+        best.into_iter().map(|b| b.map(|(p, _)| p)).collect()
+    }
+
+    fn need_keyframe(&self, inliers: usize, frame: &Frame, matched: &[Option<usize>]) -> bool {
+        // ORB-SLAM2 (RGB-D): many close points not yet in the map, or too few
+        // tracked against the reference keyframe, or too long since the last.
+        let close_tracked = matched
+            .iter()
+            .zip(&frame.depth)
+            .filter(|(m, d)| m.is_some() && d.is_some_and(|d| d < 3.1))
+            .count();
+        let close_untracked = matched
+            .iter()
+            .zip(&frame.depth)
+            .filter(|(m, d)| m.is_none() && d.is_some_and(|d| d < 3.1))
+            .count();
+        let long = self.frames_since_keyframe + 1 >= self.params.max_frames_between_keyframes;
+        let weak = (inliers as f64) < 0.75 * self.reference_inliers as f64
+            || (close_tracked < 100 && close_untracked > 70);
+        (long || weak) && inliers > 15
+    }
+
+    fn insert_keyframe(
+        &mut self,
+        frame: &Frame,
+        pose_cw: &Isometry3<f64>,
+        matched: &[Option<usize>],
+        inliers: usize,
+    ) {
+        let id = self.keyframes.len();
+        let pose_wc = pose_cw.inverse();
+        let mut observed = Vec::new();
+        for (k, m) in matched.iter().enumerate() {
+            if let Some(p) = m {
+                self.points[*p].last_keyframe = id;
+                observed.push(*p);
+            } else if let Some(d) = frame.depth[k] {
+                let (u, v) = frame.un[k];
+                let world = pose_wc * Point3::from(self.camera.unproject(u, v, d));
+                self.points.push(MapPoint {
+                    position: world.coords,
+                    descriptor: frame.descs[k],
+                    last_keyframe: id,
+                    visible: 1,
+                    found: 1,
+                });
+                observed.push(self.points.len() - 1);
+            }
+        }
+        self.keyframes.push(KeyFrame {
+            timestamp: 0.0,
+            pose_cw: *pose_cw,
+            points: observed,
+        });
+        self.frames_since_keyframe = 0;
+        self.reference_inliers = inliers.max(1);
+        // Recent-point culling: points seen in under a quarter of the frames
+        // that should have seen them stop being matched.
+        for p in &mut self.points {
+            if p.visible >= 20 && (p.found as f64) < 0.25 * p.visible as f64 {
+                p.last_keyframe = 0;
+                p.visible = 0;
+            }
+        }
+    }
+
+    /// A pose (camera from world) for a lost frame: descriptor matches to
+    /// the points of each keyframe (newest first), 3D-3D RANSAC.
+    fn relocalise(&self, frame: &Frame) -> Option<Isometry3<f64>> {
+        let cam_points: Vec<Option<Vector3<f64>>> = (0..frame.kps.len())
+            .map(|k| frame.depth[k].map(|d| self.camera.unproject(frame.un[k].0, frame.un[k].1, d)))
+            .collect();
+        for kf in self.keyframes.iter().rev().take(40) {
+            let mut pairs = Vec::new();
+            for (k, d) in frame.descs.iter().enumerate() {
+                let Some(c) = cam_points[k] else { continue };
+                let (mut b1, mut b2, mut bp) = (u32::MAX, u32::MAX, 0);
+                for &p in &kf.points {
+                    let h = hamming(d, &self.points[p].descriptor);
+                    if h < b1 {
+                        b2 = b1;
+                        b1 = h;
+                        bp = p;
+                    } else if h < b2 {
+                        b2 = h;
+                    }
+                }
+                if b1 <= 50 && (b1 as f64) < 0.8 * b2 as f64 {
+                    pairs.push((self.points[bp].position, c));
+                }
+            }
+            if pairs.len() < 20 {
+                continue;
+            }
+            if let Some(pose) = ransac_rigid(&pairs, 0.05, 200).filter(|p| {
+                p.translation
+                    .vector
+                    .iter()
+                    .chain(p.rotation.coords.iter())
+                    .all(|x| x.is_finite())
+            }) {
+                return Some(pose);
+            }
+        }
+        None
+    }
+
+    /// Trajectory of keyframes: (index, world-from-camera).
+    pub fn keyframe_poses(&self) -> Vec<Isometry3<f64>> {
+        self.keyframes.iter().map(|k| k.pose_cw.inverse()).collect()
+    }
+}
+
+fn local_all(points: &[MapPoint]) -> Vec<usize> {
+    (0..points.len()).collect()
+}
+
+/// Binary mask of non-zero labels grown by `r` pixels (square).
+fn dilate(labels: &[u8], width: usize, height: usize, r: usize) -> Vec<bool> {
+    let mut rows = vec![false; width * height];
+    for y in 0..height {
+        let mut last: Option<usize> = None;
+        for x in 0..width {
+            if labels[y * width + x] != 0 {
+                last = Some(x);
+            }
+            rows[y * width + x] = last.is_some_and(|l| x - l <= r);
+        }
+        let mut next: Option<usize> = None;
+        for x in (0..width).rev() {
+            if labels[y * width + x] != 0 {
+                next = Some(x);
+            }
+            rows[y * width + x] |= next.is_some_and(|n| n - x <= r);
+        }
+    }
+    let mut out = vec![false; width * height];
+    for x in 0..width {
+        let mut last: Option<usize> = None;
+        for y in 0..height {
+            if rows[y * width + x] {
+                last = Some(y);
+            }
+            out[y * width + x] = last.is_some_and(|l| y - l <= r);
+        }
+        let mut next: Option<usize> = None;
+        for y in (0..height).rev() {
+            if rows[y * width + x] {
+                next = Some(y);
+            }
+            out[y * width + x] |= next.is_some_and(|n| n - y <= r);
+        }
+    }
+    out
+}
+
+/// Rigid transform mapping `world` to `camera` points (camera from world)
+/// by RANSAC over 3-point Kabsch fits; `None` with under 20 inliers.
+fn ransac_rigid(
+    pairs: &[(Vector3<f64>, Vector3<f64>)],
+    threshold: f64,
+    iterations: usize,
+) -> Option<Isometry3<f64>> {
+    let mut state: u64 = 0x5EED;
+    let mut pick = |n: usize| {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((state >> 33) as usize) % n
+    };
+    let mut best: Option<(usize, Vec<usize>)> = None;
+    for _ in 0..iterations {
+        let s = [pick(pairs.len()), pick(pairs.len()), pick(pairs.len())];
+        if s[0] == s[1] || s[1] == s[2] || s[0] == s[2] {
+            continue;
+        }
+        let Some(t) = kabsch(&s.iter().map(|&i| pairs[i]).collect::<Vec<_>>()) else {
+            continue;
+        };
+        let inl: Vec<usize> = (0..pairs.len())
+            .filter(|&i| ((t * Point3::from(pairs[i].0)).coords - pairs[i].1).norm() < threshold)
+            .collect();
+        if best.as_ref().is_none_or(|b| inl.len() > b.0) {
+            best = Some((inl.len(), inl));
+        }
+    }
+    let (n, inl) = best?;
+    if n < 20 {
+        return None;
+    }
+    kabsch(&inl.iter().map(|&i| pairs[i]).collect::<Vec<_>>())
+}
+
+fn kabsch(pairs: &[(Vector3<f64>, Vector3<f64>)]) -> Option<Isometry3<f64>> {
+    let n = pairs.len() as f64;
+    let ca = pairs.iter().map(|p| p.0).sum::<Vector3<f64>>() / n;
+    let cb = pairs.iter().map(|p| p.1).sum::<Vector3<f64>>() / n;
+    let mut h = Matrix3::zeros();
+    for (a, b) in pairs {
+        h += (b - cb) * (a - ca).transpose();
+    }
+    let svd = h.svd(true, true);
+    let (u, vt) = (svd.u?, svd.v_t?);
+    let mut d = Matrix3::identity();
+    if (u * vt).determinant() < 0.0 {
+        d[(2, 2)] = -1.0;
+    }
+    let r = u * d * vt;
+    let rot = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
+    let t = cb - rot * ca;
+    Some(Isometry3::from_parts(Translation3::from(t), rot))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn kabsch_recovers_a_rigid_motion_and_ransac_ignores_outliers() {
+        let truth = Isometry3::from_parts(
+            Translation3::new(0.3, -0.1, 0.2),
+            UnitQuaternion::from_euler_angles(0.1, 0.2, -0.3),
+        );
+        let mut pairs: Vec<(Vector3<f64>, Vector3<f64>)> = (0..60)
+            .map(|i| {
+                let f = i as f64;
+                let a = Vector3::new(f.sin(), (0.7 * f).cos(), 1.0 + 0.03 * f);
+                (a, (truth * Point3::from(a)).coords)
+            })
+            .collect();
+        for p in pairs.iter_mut().step_by(4) {
+            p.1 += Vector3::new(0.5, 0.0, 0.0);
+        }
+        let t = ransac_rigid(&pairs, 0.01, 200).unwrap();
+        assert!((t.translation.vector - truth.translation.vector).norm() < 1e-9);
+    }
+
+    #[test]
+    fn dilation_grows_by_the_radius() {
+        let (w, h) = (9, 7);
+        let mut l = vec![0u8; w * h];
+        l[3 * w + 4] = 1;
+        let d = dilate(&l, w, h, 2);
+        assert_eq!(d.iter().filter(|&&b| b).count(), 25);
+        assert!(d[w + 2] && !d[w + 1]);
+    }
+}

@@ -1,0 +1,59 @@
+//! The `orb-rgbd` backend of the SLAM service: the SLAM core
+//! ([`crate::core::system::System`]) behind the service's [`Tracker`] seam.
+
+use pipeline::config::PipelineConfig;
+use shared_types::TrackState;
+
+use crate::core::camera::Camera;
+use crate::core::system::{SlamParams, System};
+use crate::tracker::{TrackInput, TrackOutcome, Tracker};
+
+pub struct RgbdTracker {
+    system: System,
+    /// The frame's depth as u16 (the shared-memory payload is bytes).
+    depth: Vec<u16>,
+}
+
+impl RgbdTracker {
+    pub fn new(config: &PipelineConfig) -> Self {
+        let camera = Camera::from_config(&config.camera, config.source.depth_scale as f64);
+        Self {
+            system: System::new(SlamParams::default(), camera),
+            depth: Vec::new(),
+        }
+    }
+}
+
+impl Tracker for RgbdTracker {
+    fn name(&self) -> &str {
+        "orb-rgbd"
+    }
+
+    fn track(&mut self, input: &TrackInput) -> TrackOutcome {
+        let frame = input.frame;
+        let (w, h) = (frame.width(), frame.height());
+        self.depth.clear();
+        match frame.depth {
+            Some(bytes) => self.depth.extend(
+                bytes
+                    .chunks_exact(2)
+                    .map(|b| u16::from_ne_bytes([b[0], b[1]])),
+            ),
+            // An image-only source: no depth anywhere (tracked as lost until
+            // the monocular initialisation exists).
+            None => self.depth.resize(w * h, 0),
+        }
+        let mask = input.masks.map(|m| m.labels);
+        let r = self.system.track_rgbd(frame.rgb, &self.depth, mask, w, h);
+        let (t, q) = (r.pose_wc.translation.vector, r.pose_wc.rotation);
+        TrackOutcome {
+            pose: [t.x, t.y, t.z, q.i, q.j, q.k, q.w],
+            state: r.state,
+            keyframe_inserted: r.keyframe_inserted,
+            // Lost frames ask for the segmenter too: relocalising on
+            // fresh masks is what a dynamic scene needs.
+            next_needs_keyframe: r.next_needs_keyframe || r.state == TrackState::Lost,
+            counts: r.counts,
+        }
+    }
+}

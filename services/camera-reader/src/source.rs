@@ -99,6 +99,44 @@ pub fn read_list(folder: &Path, name: &str) -> Result<TimedList, SourceError> {
     parse_timed_list(&text, &path, folder)
 }
 
+/// The ground-truth label images of a synthesised sequence (`masks.txt`,
+/// written by `dynslam synth`), by the colour frame's timestamp.
+pub struct MaskList {
+    entries: Vec<(f64, PathBuf)>,
+}
+
+impl MaskList {
+    /// `None` when `folder` has no `masks.txt` (not a synthesised sequence).
+    pub fn open(folder: &Path) -> Result<Option<Self>, SourceError> {
+        if !folder.join("masks.txt").is_file() {
+            return Ok(None);
+        }
+        Ok(Some(Self {
+            entries: read_list(folder, "masks.txt")?.entries,
+        }))
+    }
+
+    /// The mask file of the frame at `timestamp` (same stamp as rgb.txt).
+    pub fn path_at(&self, timestamp: f64) -> Option<&Path> {
+        let i = self.entries.partition_point(|(t, _)| *t < timestamp - 1e-5);
+        self.entries
+            .get(i)
+            .filter(|(t, _)| (t - timestamp).abs() <= 1e-5)
+            .map(|(_, p)| p.as_path())
+    }
+
+    /// The label image at `timestamp`: an error names the missing entry or
+    /// the unreadable file.
+    pub fn load_at(&self, timestamp: f64) -> Result<image::GrayImage, String> {
+        let p = self
+            .path_at(timestamp)
+            .ok_or_else(|| format!("masks.txt lists no mask for frame {timestamp:.6}"))?;
+        image::open(p)
+            .map(|i| i.to_luma8())
+            .map_err(|e| format!("{}: {e}", p.display()))
+    }
+}
+
 /// Associates rgb and depth by nearest timestamp within `max_diff` seconds:
 /// candidate pairs sorted by difference, taken greedily, each image once
 /// (the TUM benchmark's `associate.py`). Returns pairs in time order.

@@ -332,22 +332,13 @@ fn sample_points(
             if edge {
                 let inward = [(1isize, 0isize), (-1, 0), (0, 1), (0, -1)]
                     .into_iter()
-                    .find(|&(dx, dy)| {
-                        let (ix, iy) = (
-                            x as isize + dx * inset as isize,
-                            y as isize + dy * inset as isize,
-                        );
-                        ix >= 0
-                            && iy >= 0
-                            && (ix as usize) < width
-                            && (iy as usize) < height
-                            && deep(ix as usize, iy as usize)
+                    .find_map(|(dx, dy)| {
+                        let ix = x.checked_add_signed(dx * inset as isize)?;
+                        let iy = y.checked_add_signed(dy * inset as isize)?;
+                        (ix < width && iy < height && deep(ix, iy)).then_some((ix, iy))
                     });
-                if let Some((dx, dy)) = inward {
-                    border.push((
-                        (x as isize + dx * inset as isize) as f32,
-                        (y as isize + dy * inset as isize) as f32,
-                    ));
+                if let Some((ix, iy)) = inward {
+                    border.push((ix as f32, iy as f32));
                 }
             }
         }

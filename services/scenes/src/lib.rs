@@ -6,12 +6,11 @@
 //!   about 1 m/s across the view, fixed in the world frame.
 //! - [`composite`]: draws people into one RGB-D frame with depth-consistent
 //!   occlusion and writes their instance ids into a label image.
-//! - [`truth`]: reading those masks back and scoring predicted masks.
+//! - [`truth`]: scoring predicted masks against those ground-truth masks.
 //! - [`synth`]: `dynslam synth`, a TUM folder in, a dynamic TUM folder with
 //!   per-frame ground-truth masks and the objects' paths out.
 
 pub mod composite;
-pub mod rng;
 pub mod sprites;
 pub mod synth;
 pub mod truth;

@@ -134,7 +134,13 @@ pub fn synthesize(
         .iter()
         .map(|s| s.width() as f64 / s.height() as f64)
         .collect();
-    let half_fov_tan = camera.cx.max(640.0 - camera.cx) / camera.fx;
+    // The frame size from the first image's header (walk widths and coverage).
+    let (width, height) =
+        image::image_dimensions(&frames[0].rgb).map_err(|e| SynthError::BadImage {
+            path: frames[0].rgb.clone(),
+            message: e.to_string(),
+        })?;
+    let half_fov_tan = camera.cx.max(width as f64 - camera.cx) / camera.fx;
     let walkers = walkers(options, half_fov_tan, &aspects);
     let t0 = frames[0].timestamp;
 
@@ -187,6 +193,13 @@ pub fn synthesize(
         .collect();
 
     write_lists(output, &frames_out)?;
+    let coverages: Vec<f64> = frames_out
+        .iter()
+        .map(|f| {
+            f.objects.iter().map(|o| o.visible_px).sum::<usize>() as f64
+                / (width as f64 * height as f64)
+        })
+        .collect();
     let gt_out = output.join("groundtruth.txt");
     std::fs::copy(&gt_path, &gt_out).map_err(io_err(&gt_out))?;
     let record = SceneRecord {
@@ -196,21 +209,16 @@ pub fn synthesize(
         sprite_provenance: "assets/PROVENANCE.md: scikit-image 0.26.0 sample data (astronaut: NASA, public domain; camera: CC0)",
         class: "person",
         walkers,
-        frames: frames_out.clone(),
+        frames: frames_out,
     };
     let json_path = output.join("objects.json");
     let json = serde_json::to_string_pretty(&record).expect("scene record serialises");
     std::fs::write(&json_path, json).map_err(io_err(&json_path))?;
 
-    let pixels = (frames.len().max(1)) as f64;
-    let coverages: Vec<f64> = frames_out
-        .iter()
-        .map(|f| f.objects.iter().map(|o| o.visible_px).sum::<usize>() as f64 / (640.0 * 480.0))
-        .collect();
     Ok(SynthSummary {
-        frames: frames_out.len(),
+        frames: coverages.len(),
         frames_with_people: coverages.iter().filter(|&&c| c > 0.0).count(),
-        mean_coverage: coverages.iter().sum::<f64>() / pixels,
+        mean_coverage: coverages.iter().sum::<f64>() / coverages.len().max(1) as f64,
         max_coverage: coverages.iter().cloned().fold(0.0, f64::max),
     })
 }

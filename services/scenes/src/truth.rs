@@ -1,5 +1,5 @@
-//! Ground-truth masks of a synthesised sequence (`masks.txt`, `masks/`)
-//! and how predicted masks are scored against them.
+//! How predicted masks are scored against the ground-truth masks of a
+//! synthesised sequence (read with `camera_reader::source::MaskList`).
 //!
 //! Scoring is per ground-truth person: its IoU with the best-overlapping
 //! predicted instance. Union-of-everything IoU would punish a segmenter for
@@ -7,44 +7,6 @@
 //! some), which is correct behaviour.
 
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
-
-use camera_reader::source::{read_list, SourceError};
-
-/// The ground-truth label images of a sequence, by timestamp.
-pub struct TruthMasks {
-    entries: Vec<(f64, PathBuf)>,
-}
-
-impl TruthMasks {
-    /// `None` when `folder` has no `masks.txt` (not a synthesised sequence).
-    pub fn open(folder: &Path) -> Result<Option<Self>, SourceError> {
-        if !folder.join("masks.txt").is_file() {
-            return Ok(None);
-        }
-        Ok(Some(Self {
-            entries: read_list(folder, "masks.txt")?.entries,
-        }))
-    }
-
-    /// The mask file of the frame at `timestamp` (same stamp as rgb.txt).
-    pub fn path_at(&self, timestamp: f64) -> Option<&Path> {
-        let i = self.entries.partition_point(|(t, _)| *t < timestamp - 1e-5);
-        self.entries
-            .get(i)
-            .filter(|(t, _)| (t - timestamp).abs() <= 1e-5)
-            .map(|(_, p)| p.as_path())
-    }
-
-    /// The label image at `timestamp`, if listed.
-    pub fn load_at(&self, timestamp: f64) -> Option<Result<image::GrayImage, String>> {
-        self.path_at(timestamp).map(|p| {
-            image::open(p)
-                .map(|i| i.to_luma8())
-                .map_err(|e| format!("{}: {e}", p.display()))
-        })
-    }
-}
 
 /// One ground-truth person's score in one frame.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -119,6 +119,20 @@ impl Trajectory {
         Some(Isometry3::from_parts(translation.into(), rotation))
     }
 
+    /// TUM text: a header comment, then `timestamp tx ty tz qx qy qz qw`
+    /// per pose (the format `parse_tum` reads and evo expects).
+    pub fn to_tum(&self) -> String {
+        let mut out = String::from("# timestamp tx ty tz qx qy qz qw\n");
+        for (t, p) in self.stamps.iter().zip(&self.poses) {
+            let (v, q) = (p.translation.vector, p.rotation);
+            out.push_str(&format!(
+                "{t:.6} {:.7} {:.7} {:.7} {:.7} {:.7} {:.7} {:.7}\n",
+                v.x, v.y, v.z, q.i, q.j, q.k, q.w
+            ));
+        }
+        out
+    }
+
     /// The trajectory keeping only the poses at `ids`.
     pub fn select(&self, ids: &[usize]) -> Self {
         Self {
@@ -143,6 +157,21 @@ mod tests {
         assert_eq!(t.poses[0].translation.vector.z, 3.0);
         let angle = t.poses[1].rotation.angle();
         assert!((angle - std::f64::consts::FRAC_PI_2).abs() < 1e-6);
+    }
+
+    #[test]
+    fn tum_text_round_trips() {
+        let t = Trajectory::parse_tum(
+            "1.5 1 2 3 0 0 0.7071068 0.7071068\n2.25 4 5 6 0 0 0 1\n",
+            Path::new("a"),
+        )
+        .unwrap();
+        let back = Trajectory::parse_tum(&t.to_tum(), Path::new("b")).unwrap();
+        assert_eq!(back.stamps, t.stamps);
+        for (a, b) in back.poses.iter().zip(&t.poses) {
+            assert!((a.translation.vector - b.translation.vector).norm() < 1e-6);
+            assert!(a.rotation.angle_to(&b.rotation) < 1e-6);
+        }
     }
 
     #[test]

@@ -9,6 +9,7 @@ use shared_types::TrackState;
 use slam::core::camera::Camera;
 use slam::core::system::{SlamParams, System};
 use slam::eval::{evaluate_files, EvalOptions};
+use slam::trajectory::Trajectory;
 
 fn tum() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -51,19 +52,19 @@ fn tracked(s: TrackState) -> bool {
 fn tracks_the_whole_sequence_accurately() {
     let data = load(usize::MAX);
     let mut sys = system();
-    let mut lines = String::new();
+    let mut trajectory = Trajectory {
+        stamps: Vec::new(),
+        poses: Vec::new(),
+    };
     let mut ok = 0;
     for (t, rgb, depth) in &data {
         let r = sys.track_rgbd(rgb.as_raw(), depth.as_raw(), None, 640, 480);
         ok += tracked(r.state) as usize;
-        let (p, q) = (r.pose_wc.translation.vector, r.pose_wc.rotation);
-        lines += &format!(
-            "{t:.6} {} {} {} {} {} {} {}\n",
-            p.x, p.y, p.z, q.i, q.j, q.k, q.w
-        );
+        trajectory.stamps.push(*t);
+        trajectory.poses.push(r.pose_wc);
     }
     let est = std::env::temp_dir().join(format!("core_tum_{}.txt", std::process::id()));
-    std::fs::write(&est, lines).unwrap();
+    std::fs::write(&est, trajectory.to_tum()).unwrap();
     let s = evaluate_files(&tum().join("groundtruth.txt"), &est, EvalOptions::default()).unwrap();
     let _ = std::fs::remove_file(&est);
     let frac = ok as f64 / data.len() as f64;

@@ -152,100 +152,8 @@ enum Mode {
 
 fn main() -> ExitCode {
     init_logging();
-    let cli = Cli::parse();
-    if let Command::Synth {
-        input,
-        output,
-        objects,
-        speed,
-        near,
-        far,
-        height,
-        seed,
-        limit,
-        config,
-    } = &cli.command
-    {
-        let options = scenes::walkers::WalkOptions {
-            objects: *objects,
-            speed_mps: *speed,
-            near_m: *near,
-            far_m: *far,
-            height_m: *height,
-            seed: *seed,
-        };
-        return match synth(input, output, &options, *limit, config) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(e) => {
-                eprintln!("error: {e:#}");
-                ExitCode::FAILURE
-            }
-        };
-    }
-    if let Command::MasksEval {
-        dataset,
-        keyframe_every,
-        min_px,
-        limit,
-        json,
-        config,
-    } = &cli.command
-    {
-        return match masks_eval(dataset, *keyframe_every, *min_px, *limit, *json, config) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(e) => {
-                eprintln!("error: {e:#}");
-                ExitCode::FAILURE
-            }
-        };
-    }
-    if let Command::Eval {
-        gt,
-        est,
-        align,
-        max_diff,
-        json,
-        out,
-        plot,
-    } = &cli.command
-    {
-        return match eval(
-            gt,
-            est,
-            *align,
-            *max_diff,
-            *json,
-            out.as_deref(),
-            plot.as_deref(),
-        ) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(e) => {
-                eprintln!("error: {e:#}");
-                ExitCode::FAILURE
-            }
-        };
-    }
-    match dispatch(cli.command) {
-        Ok(summary) => {
-            eprintln!("{}", summary.latency_table);
-            eprintln!(
-                "{} frames, {} tracked, {} service restarts{}",
-                summary.frames,
-                summary.tracked,
-                summary.restarts,
-                if summary.interrupted {
-                    " (interrupted)"
-                } else {
-                    ""
-                }
-            );
-            println!("{}", summary.run_dir.display());
-            if summary.interrupted {
-                ExitCode::from(130)
-            } else {
-                ExitCode::SUCCESS
-            }
-        }
+    match dispatch(Cli::parse().command) {
+        Ok(code) => code,
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE
@@ -253,7 +161,7 @@ fn main() -> ExitCode {
     }
 }
 
-fn dispatch(command: Command) -> Result<RunSummary> {
+fn dispatch(command: Command) -> Result<ExitCode> {
     match command {
         Command::Run {
             dataset,
@@ -305,12 +213,81 @@ fn dispatch(command: Command) -> Result<RunSummary> {
             let out = output_dir.unwrap_or_else(|| cfg.run.output_dir.clone());
             let dir = run_dir::create(&out, &id, &cfg)?;
             eprintln!("run {id}: {}", dir.display());
-            execute(&dir)
+            Ok(report_run(&execute(&dir)?))
         }
-        Command::Resume { run_dir } => execute(&run_dir),
-        Command::Eval { .. } | Command::Synth { .. } | Command::MasksEval { .. } => {
-            unreachable!("handled in main")
+        Command::Resume { run_dir } => Ok(report_run(&execute(&run_dir)?)),
+        Command::Eval {
+            gt,
+            est,
+            align,
+            max_diff,
+            json,
+            out,
+            plot,
+        } => eval(
+            &gt,
+            &est,
+            align,
+            max_diff,
+            json,
+            out.as_deref(),
+            plot.as_deref(),
+        )
+        .map(|()| ExitCode::SUCCESS),
+        Command::Synth {
+            input,
+            output,
+            objects,
+            speed,
+            near,
+            far,
+            height,
+            seed,
+            limit,
+            config,
+        } => {
+            let options = scenes::walkers::WalkOptions {
+                objects,
+                speed_mps: speed,
+                near_m: near,
+                far_m: far,
+                height_m: height,
+                seed,
+            };
+            synth(&input, &output, &options, limit, &config).map(|()| ExitCode::SUCCESS)
         }
+        Command::MasksEval {
+            dataset,
+            keyframe_every,
+            min_px,
+            limit,
+            json,
+            config,
+        } => masks_eval(&dataset, keyframe_every, min_px, limit, json, &config)
+            .map(|()| ExitCode::SUCCESS),
+    }
+}
+
+/// Prints a finished run's summary (the run folder last, on stdout) and
+/// picks the exit code: 130 when it was interrupted.
+fn report_run(summary: &RunSummary) -> ExitCode {
+    eprintln!("{}", summary.latency_table);
+    eprintln!(
+        "{} frames, {} tracked, {} service restarts{}",
+        summary.frames,
+        summary.tracked,
+        summary.restarts,
+        if summary.interrupted {
+            " (interrupted)"
+        } else {
+            ""
+        }
+    );
+    println!("{}", summary.run_dir.display());
+    if summary.interrupted {
+        ExitCode::from(130)
+    } else {
+        ExitCode::SUCCESS
     }
 }
 

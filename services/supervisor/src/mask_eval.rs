@@ -10,11 +10,11 @@
 use std::path::Path;
 
 use anyhow::{bail, Context, Result};
-use camera_reader::source::tum_folder;
+use camera_reader::source::{tum_folder, MaskList};
 use pipeline::config::PipelineConfig;
 use pipeline::progress::Progress;
 use propagator::propagate::{LkPropagator, PropagatorParams};
-use scenes::truth::{instance_ious, TruthMasks};
+use scenes::truth::instance_ious;
 use segmenter::onnx::{init_runtime, YoloSeg, YoloSettings};
 use serde::Serialize;
 
@@ -57,7 +57,7 @@ pub fn evaluate(
     if keyframe_every < 2 {
         bail!("--keyframe-every {keyframe_every}: must be at least 2 (a keyframe and a propagated frame)");
     }
-    let truth = TruthMasks::open(dataset)?.with_context(|| {
+    let truth = MaskList::open(dataset)?.with_context(|| {
         format!(
             "{} has no masks.txt: masks-eval needs a sequence made by `dynslam synth`",
             dataset.display()
@@ -83,10 +83,7 @@ pub fn evaluate(
             .with_context(|| frame.rgb.display().to_string())?
             .to_rgb8();
         let (w, h) = (rgb.width() as usize, rgb.height() as usize);
-        let gt = truth
-            .load_at(frame.timestamp)
-            .with_context(|| format!("masks.txt lists no mask for frame {:.6}", frame.timestamp))?
-            .map_err(anyhow::Error::msg)?;
+        let gt = truth.load_at(frame.timestamp).map_err(anyhow::Error::msg)?;
         if (gt.width() as usize, gt.height() as usize) != (w, h) {
             bail!(
                 "mask of frame {:.6} is {}x{}, the frame {w}x{h}",

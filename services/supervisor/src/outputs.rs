@@ -11,7 +11,9 @@ use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
+use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use shared_types::StageStamps;
+use slam::trajectory::Trajectory;
 
 pub const FRAMES_CSV: &str = "frames.csv";
 
@@ -218,18 +220,22 @@ pub fn write_tum(
     rows: &[FrameRow],
     keep: impl Fn(&FrameRow) -> bool,
 ) -> Result<usize> {
-    let mut out = String::from("# timestamp tx ty tz qx qy qz qw\n");
-    let mut n = 0;
-    for r in rows.iter().filter(|r| keep(r)) {
-        let p = r.pose;
-        out.push_str(&format!(
-            "{:.6} {:.7} {:.7} {:.7} {:.7} {:.7} {:.7} {:.7}\n",
-            r.timestamp, p[0], p[1], p[2], p[3], p[4], p[5], p[6]
-        ));
-        n += 1;
-    }
-    std::fs::write(path, out).with_context(|| format!("cannot write {}", path.display()))?;
-    Ok(n)
+    let kept: Vec<&FrameRow> = rows.iter().filter(|r| keep(r)).collect();
+    let trajectory = Trajectory {
+        stamps: kept.iter().map(|r| r.timestamp).collect(),
+        poses: kept.iter().map(|r| pose_of(&r.pose)).collect(),
+    };
+    std::fs::write(path, trajectory.to_tum())
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(kept.len())
+}
+
+/// A Track's `[tx ty tz qx qy qz qw]` as an isometry.
+fn pose_of(p: &[f64; 7]) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::new(p[0], p[1], p[2]),
+        UnitQuaternion::new_unchecked(Quaternion::new(p[6], p[3], p[4], p[5])),
+    )
 }
 
 #[cfg(test)]

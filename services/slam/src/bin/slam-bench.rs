@@ -9,7 +9,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use camera_reader::source::tum_folder;
+use camera_reader::source::{tum_folder, MaskList};
 use clap::Parser;
 use pipeline::config::PipelineConfig;
 use pipeline::progress::Progress;
@@ -18,6 +18,7 @@ use shared_types::TrackState;
 use slam::core::camera::Camera;
 use slam::core::system::{SlamParams, System};
 use slam::eval::{evaluate_files, EvalOptions};
+use slam::trajectory::Trajectory;
 
 #[derive(Debug, Parser)]
 #[command(about = "SLAM core: ms per frame per step, tracking and accuracy")]
@@ -47,13 +48,19 @@ fn main() -> Result<()> {
         frames.truncate(n);
     }
     let truth = if args.masks {
-        Some(scenes_masks(&args.dataset)?)
+        Some(
+            MaskList::open(&args.dataset)?
+                .with_context(|| format!("--masks: {} has no masks.txt", args.dataset.display()))?,
+        )
     } else {
         None
     };
     let mut system = System::new(SlamParams::default(), camera);
     let (mut extract, mut track, mut total) = (Vec::new(), Vec::new(), Vec::new());
-    let mut lines = String::new();
+    let mut trajectory = Trajectory {
+        stamps: Vec::new(),
+        poses: Vec::new(),
+    };
     let mut tracked = 0;
     let mut progress = Progress::new("slam", frames.len() as u64);
     for f in &frames {
@@ -65,7 +72,11 @@ fn main() -> Result<()> {
             .with_context(|| depth_path.display().to_string())?
             .into_luma16();
         let mask = match &truth {
-            Some(t) => Some(load_mask_at(t, f.timestamp)?),
+            Some(t) => Some(
+                t.load_at(f.timestamp)
+                    .map_err(anyhow::Error::msg)?
+                    .into_raw(),
+            ),
             None => None,
         };
         let (w, h) = (rgb.width() as usize, rgb.height() as usize);
@@ -87,18 +98,15 @@ fn main() -> Result<()> {
         if matches!(r.state, TrackState::Ok | TrackState::Relocalised) {
             tracked += 1;
         }
-        let (t, q) = (r.pose_wc.translation.vector, r.pose_wc.rotation);
-        lines += &format!(
-            "{:.6} {:.6} {:.6} {:.6} {:.6} {:.6} {:.6} {:.6}\n",
-            f.timestamp, t.x, t.y, t.z, q.i, q.j, q.k, q.w
-        );
+        trajectory.stamps.push(f.timestamp);
+        trajectory.poses.push(r.pose_wc);
         progress.inc();
     }
     progress.finish();
     if let Some(dir) = args.out.parent() {
         std::fs::create_dir_all(dir)?;
     }
-    std::fs::write(&args.out, lines)?;
+    std::fs::write(&args.out, trajectory.to_tum())?;
     for v in [&mut extract, &mut track, &mut total] {
         v.sort_by(f64::total_cmp);
     }
@@ -135,22 +143,6 @@ fn main() -> Result<()> {
     }
     println!("trajectory: {}", args.out.display());
     Ok(())
-}
-
-fn scenes_masks(folder: &std::path::Path) -> Result<Vec<(f64, PathBuf)>> {
-    let list = camera_reader::source::read_list(folder, "masks.txt")?;
-    Ok(list.entries)
-}
-
-fn load_mask_at(list: &[(f64, PathBuf)], t: f64) -> Result<Vec<u8>> {
-    let (_, p) = list
-        .iter()
-        .find(|(s, _)| (s - t).abs() < 1e-5)
-        .with_context(|| format!("masks.txt has no mask for {t:.6}"))?;
-    Ok(image::open(p)
-        .with_context(|| p.display().to_string())?
-        .to_luma8()
-        .into_raw())
 }
 
 fn peak_rss_mib() -> f64 {

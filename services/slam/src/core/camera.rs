@@ -6,6 +6,9 @@
 use nalgebra::Vector3;
 use pipeline::config::CameraConfig;
 
+/// An image extent in pixels: x0, x1, y0, y1.
+pub type Bounds = (f64, f64, f64, f64);
+
 #[derive(Debug, Clone, Copy)]
 pub struct Camera {
     pub fx: f64,
@@ -52,6 +55,20 @@ impl Camera {
             y = (yd - dy) / radial;
         }
         (x * self.fx + self.cx, y * self.fy + self.cy)
+    }
+
+    /// Extent of a `width x height` image after undistortion (x0, x1, y0,
+    /// y1), from its corners as ORB-SLAM2's `ComputeImageBounds`: map points
+    /// projecting outside it cannot be in view.
+    pub fn undistorted_bounds(&self, width: usize, height: usize) -> Bounds {
+        let (w, h) = (width as f64, height as f64);
+        let corners = [(0.0, 0.0), (w, 0.0), (0.0, h), (w, h)].map(|(u, v)| self.undistort(u, v));
+        (
+            corners[0].0.min(corners[2].0),
+            corners[1].0.max(corners[3].0),
+            corners[0].1.min(corners[1].1),
+            corners[2].1.max(corners[3].1),
+        )
     }
 
     /// Distorts an ideal pixel (the forward model).

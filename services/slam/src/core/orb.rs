@@ -8,6 +8,10 @@
 //! (sigma = patch/5, the distribution Calonder et al. found best) with a
 //! fixed seed: descriptors are comparable across runs and machines.
 
+use std::borrow::Cow;
+
+use pipeline::rng::SplitMix64;
+
 /// One keypoint, in level-0 pixel coordinates of the (distorted) image.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct KeyPoint {
@@ -195,8 +199,9 @@ const BORDER: usize = 20;
 const CELL: usize = 30;
 const HALF_PATCH: isize = 15;
 
-struct Level {
-    img: GrayU8,
+struct Level<'a> {
+    /// Level 0 borrows the caller's image; the others own their resize.
+    img: Cow<'a, GrayU8>,
     smooth: GrayU8,
     scale: f32,
 }
@@ -211,17 +216,10 @@ fn disc_half_widths() -> [isize; 16] {
 }
 
 fn pattern() -> Vec<[(f32, f32); 2]> {
-    // SplitMix64 + Box-Muller, fixed seed: the descriptor layout never changes.
-    let mut s: u64 = 0x0DB5_1A11_0000_0001;
-    let mut next = || {
-        s = s.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = s;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    };
+    // Box-Muller on a fixed-seed stream: the descriptor layout never changes.
+    let mut rng = SplitMix64::new(0x0DB5_1A11_0000_0001);
     let mut gauss = || {
-        let (u1, u2) = (next().max(1e-12), next());
+        let (u1, u2) = (rng.uniform(0.0, 1.0).max(1e-12), rng.uniform(0.0, 1.0));
         ((-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()) as f32
     };
     let sigma = 31.0 / 5.0;
@@ -274,7 +272,7 @@ impl OrbExtractor {
         let mut kps = Vec::new();
         let mut descs = Vec::new();
         let mut rejected = 0;
-        let mut prev: Option<GrayU8> = None;
+        let mut prev: Option<Cow<GrayU8>> = None;
         for level in 0..p.levels {
             let scale = p.scale_factor.powi(level as i32);
             let (w, h) = (
@@ -285,8 +283,8 @@ impl OrbExtractor {
                 break;
             }
             let lvl_img = match &prev {
-                None => img.clone(),
-                Some(pr) => pr.resized(w, h),
+                None => Cow::Borrowed(img),
+                Some(pr) => Cow::Owned(pr.resized(w, h)),
             };
             let lv = Level {
                 smooth: lvl_img.smoothed(),

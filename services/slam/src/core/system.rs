@@ -17,9 +17,10 @@
 //! adjustment and keyframe culling.
 
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use pipeline::rng::SplitMix64;
 use shared_types::{TrackCounts, TrackState};
 
-use super::camera::Camera;
+use super::camera::{Bounds, Camera};
 use super::optimize::{optimize_pose, renormalized, Observation};
 use super::orb::{hamming, Descriptor, GrayU8, KeyPoint, OrbExtractor, OrbParams};
 
@@ -66,7 +67,6 @@ pub struct MapPoint {
 
 #[derive(Debug, Clone)]
 pub struct KeyFrame {
-    pub timestamp: f64,
     /// Camera from world.
     pub pose_cw: Isometry3<f64>,
     /// Points this keyframe observes (ids into the map).
@@ -81,6 +81,8 @@ struct Frame {
     descs: Vec<Descriptor>,
     depth: Vec<Option<f64>>,
     grid: Grid,
+    /// Undistorted image extent (x0, x1, y0, y1).
+    bounds: Bounds,
 }
 
 /// Keypoints bucketed by undistorted position, for radius search.
@@ -159,6 +161,8 @@ pub struct System {
     /// Inliers of the frame that made the last keyframe.
     reference_inliers: usize,
     lost: bool,
+    /// Undistorted image extent, computed once per frame size.
+    bounds: Option<((usize, usize), Bounds)>,
 }
 
 fn to_ms(t: std::time::Instant) -> f64 {
@@ -178,6 +182,7 @@ impl System {
             frames_since_keyframe: 0,
             reference_inliers: 0,
             lost: false,
+            bounds: None,
         }
     }
 
@@ -242,6 +247,7 @@ impl System {
             descs,
             depth: depths,
             grid,
+            bounds: self.bounds(width, height),
         };
         let extract_ms = to_ms(t0);
         let t1 = std::time::Instant::now();
@@ -251,7 +257,8 @@ impl System {
             features_masked: masked as u32,
             ..Default::default()
         };
-        let (state, pose_cw, inliers, matched) = if self.keyframes.is_empty() {
+        let initialising = self.keyframes.is_empty();
+        let (state, pose_cw, inliers, matched) = if initialising {
             match self.initialise(&frame) {
                 true => (
                     TrackState::Ok,
@@ -269,21 +276,21 @@ impl System {
         } else {
             self.track(&frame)
         };
-        let mut keyframe_inserted = self.keyframes.len() == 1
-            && self.frames_since_keyframe == 0
-            && state == TrackState::Ok
-            && self.last_pose.is_none();
+        // A successful initialisation made the first keyframe.
+        let mut keyframe_inserted = initialising && state == TrackState::Ok;
         if matches!(state, TrackState::Ok | TrackState::Relocalised) {
             if let Some(last) = self.last_pose {
                 self.velocity = Some(renormalized(&(pose_cw * last.inverse())));
             }
             self.last_pose = Some(pose_cw);
             self.lost = false;
-            if !keyframe_inserted && self.need_keyframe(inliers, &frame, &matched) {
-                self.insert_keyframe(&frame, &pose_cw, &matched, inliers);
-                keyframe_inserted = true;
-            } else if !keyframe_inserted {
-                self.frames_since_keyframe += 1;
+            if !keyframe_inserted {
+                if self.need_keyframe(inliers, &frame, &matched) {
+                    self.insert_keyframe(&frame, &pose_cw, &matched, inliers);
+                    keyframe_inserted = true;
+                } else {
+                    self.frames_since_keyframe += 1;
+                }
             }
         } else if !self.keyframes.is_empty() {
             self.lost = true;
@@ -294,7 +301,7 @@ impl System {
         counts.keyframes = self.keyframes.len() as u32;
         let next_needs_keyframe = !keyframe_inserted
             && (self.lost
-                || self.frames_since_keyframe + 1 >= self.params.max_frames_between_keyframes
+                || self.keyframe_due()
                 || (inliers as f64) < 0.85 * self.reference_inliers as f64);
         let pose_for_output = self.last_pose.unwrap_or(pose_cw);
         FrameResult {
@@ -305,6 +312,17 @@ impl System {
             counts,
             extract_ms,
             track_ms: to_ms(t1),
+        }
+    }
+
+    fn bounds(&mut self, width: usize, height: usize) -> Bounds {
+        match self.bounds {
+            Some((size, b)) if size == (width, height) => b,
+            _ => {
+                let b = self.camera.undistorted_bounds(width, height);
+                self.bounds = Some(((width, height), b));
+                b
+            }
         }
     }
 
@@ -331,7 +349,12 @@ impl System {
             }
         }
         match self.relocalise(frame) {
-            Some(start) => match self.track_from(frame, &local_all(&self.points), &start, 10.0) {
+            Some(start) => match self.track_from(
+                frame,
+                &(0..self.points.len()).collect::<Vec<_>>(),
+                &start,
+                10.0,
+            ) {
                 Some((pose, matched, n)) => (TrackState::Relocalised, pose, n, matched),
                 None => (TrackState::Lost, start, 0, Vec::new()),
             },
@@ -433,7 +456,8 @@ impl System {
                 continue;
             }
             let (u, v) = self.camera.project(&pc.coords);
-            if !(0.0..640.0 * 2.0).contains(&u) || !(0.0..480.0 * 2.0).contains(&v) {
+            let (x0, x1, y0, y1) = frame.bounds;
+            if !(x0..x1).contains(&u) || !(y0..y1).contains(&v) {
                 continue;
             }
             // Coarse-level keypoints are located less precisely: the window
@@ -469,20 +493,24 @@ impl System {
     fn need_keyframe(&self, inliers: usize, frame: &Frame, matched: &[Option<usize>]) -> bool {
         // ORB-SLAM2 (RGB-D): many close points not yet in the map, or too few
         // tracked against the reference keyframe, or too long since the last.
-        let close_tracked = matched
-            .iter()
-            .zip(&frame.depth)
-            .filter(|(m, d)| m.is_some() && d.is_some_and(|d| d < 3.1))
-            .count();
-        let close_untracked = matched
-            .iter()
-            .zip(&frame.depth)
-            .filter(|(m, d)| m.is_none() && d.is_some_and(|d| d < 3.1))
-            .count();
-        let long = self.frames_since_keyframe + 1 >= self.params.max_frames_between_keyframes;
+        let (mut close_tracked, mut close_untracked) = (0, 0);
+        for (m, d) in matched.iter().zip(&frame.depth) {
+            if d.is_some_and(|d| d < 3.1) {
+                match m {
+                    Some(_) => close_tracked += 1,
+                    None => close_untracked += 1,
+                }
+            }
+        }
+        let long = self.keyframe_due();
         let weak = (inliers as f64) < 0.75 * self.reference_inliers as f64
             || (close_tracked < 100 && close_untracked > 70);
         (long || weak) && inliers > 15
+    }
+
+    /// The next frame reaches the longest allowed gap between keyframes.
+    fn keyframe_due(&self) -> bool {
+        self.frames_since_keyframe + 1 >= self.params.max_frames_between_keyframes
     }
 
     fn insert_keyframe(
@@ -513,7 +541,6 @@ impl System {
             }
         }
         self.keyframes.push(KeyFrame {
-            timestamp: 0.0,
             pose_cw: *pose_cw,
             points: observed,
         });
@@ -576,10 +603,6 @@ impl System {
     }
 }
 
-fn local_all(points: &[MapPoint]) -> Vec<usize> {
-    (0..points.len()).collect()
-}
-
 /// Binary mask of non-zero labels grown by `r` pixels (square).
 fn dilate(labels: &[u8], width: usize, height: usize, r: usize) -> Vec<bool> {
     let mut rows = vec![false; width * height];
@@ -626,13 +649,8 @@ fn ransac_rigid(
     threshold: f64,
     iterations: usize,
 ) -> Option<Isometry3<f64>> {
-    let mut state: u64 = 0x5EED;
-    let mut pick = |n: usize| {
-        state = state
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((state >> 33) as usize) % n
-    };
+    let mut rng = SplitMix64::new(0x5EED);
+    let mut pick = |n: usize| rng.below(n);
     let mut best: Option<(usize, Vec<usize>)> = None;
     for _ in 0..iterations {
         let s = [pick(pairs.len()), pick(pairs.len()), pick(pairs.len())];

@@ -1,7 +1,8 @@
-//! SplitMix64: a tiny, fast, seedable generator. Scenes must be identical for
-//! a seed on every machine and every version of every dependency, so the
-//! generator is owned here rather than taken from a crate whose streams may
-//! change between releases.
+//! SplitMix64: a tiny, fast, seedable generator. Synthesised scenes, the ORB
+//! descriptor's test pattern and RANSAC sampling must be identical for a seed
+//! on every machine and every version of every dependency, so the generator
+//! is owned here rather than taken from a crate whose streams may change
+//! between releases.
 
 pub struct SplitMix64(u64);
 
@@ -16,6 +17,12 @@ impl SplitMix64 {
         z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
         z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
         z ^ (z >> 31)
+    }
+
+    /// Uniform integer in [0, n) (n > 0; the modulo bias is irrelevant for
+    /// sampling indices).
+    pub fn below(&mut self, n: usize) -> usize {
+        (self.next_u64() % n as u64) as usize
     }
 
     /// Uniform in [lo, hi).

@@ -5,17 +5,16 @@
 //! Real-time: publishes at the source's timestamps (times `speed`), never
 //! waits; consumers take the newest frame and the supervisor counts drops.
 
-use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::Result;
 use camera_reader::decode::png_size;
 use camera_reader::frame::{decode_frame, header_for, mark_bad, FrameGeometry};
-use camera_reader::source::{image_folder, tum_folder, FrameEntry};
+use camera_reader::source::{configured_frames, FrameEntry};
 use clap::Parser;
 use pipeline::clock::now_ns;
-use pipeline::config::{ClockMode, SourceKind};
+use pipeline::config::ClockMode;
 use pipeline::runtime::{run_service, InputError, ServiceArgs, ServiceContext};
 use pipeline::transport::{attach, wait, waitset, Receiver, Sender, Waiter, Wake};
 use shared_types::names::Topic;
@@ -40,15 +39,7 @@ fn main() -> ExitCode {
 
 fn load_source(ctx: &ServiceContext) -> Result<(Vec<FrameEntry>, FrameGeometry)> {
     let src = &ctx.config.source;
-    let folder: PathBuf = src.path.clone();
-    let mut frames = match src.kind {
-        SourceKind::Tum => tum_folder(&folder, src.max_time_diff),
-        SourceKind::Images => image_folder(&folder, src.image_period),
-    }
-    .map_err(|e| InputError(e.to_string()))?;
-    if src.limit > 0 {
-        frames.truncate(src.limit as usize);
-    }
+    let frames = configured_frames(src).map_err(|e| InputError(e.to_string()))?;
     // The first frame fixes the sequence's size; it must fit shared memory.
     let (width, height) = png_size(&frames[0].rgb).map_err(|e| InputError(e.to_string()))?;
     let run = &ctx.config.run;

@@ -137,6 +137,21 @@ impl MaskList {
     }
 }
 
+/// The frames a run with source settings `src` plays, in order: the
+/// folder read as `src.kind` says, cut to `src.limit` (0: all).
+pub fn configured_frames(
+    src: &pipeline::config::SourceConfig,
+) -> Result<Vec<FrameEntry>, SourceError> {
+    let mut frames = match src.kind {
+        pipeline::config::SourceKind::Tum => tum_folder(&src.path, src.max_time_diff),
+        pipeline::config::SourceKind::Images => image_folder(&src.path, src.image_period),
+    }?;
+    if src.limit > 0 {
+        frames.truncate(src.limit as usize);
+    }
+    Ok(frames)
+}
+
 /// Associates rgb and depth by nearest timestamp within `max_diff` seconds:
 /// candidate pairs sorted by difference, taken greedily, each image once
 /// (the TUM benchmark's `associate.py`). Returns pairs in time order.

@@ -230,6 +230,10 @@ pub struct ServiceConfig {
     pub keyframe_every: u64,
     /// Scripted backends: simulated work per frame (milliseconds).
     pub work_ms: u64,
+    /// SLAM: how masks are applied: "filter" (default: keypoints under the
+    /// dilated mask are dropped at detection) or "blackout" (masked pixels
+    /// are painted black before extraction; the ablation's row e).
+    pub mask_mode: String,
     /// Scripted SLAM: append every tracked seq to this file (delivery tests).
     pub seen_log: Option<PathBuf>,
     /// Model backends: file name of the model (located as described in
@@ -318,6 +322,15 @@ impl PipelineConfig {
         }
         if !(self.source.image_period.is_finite() && self.source.image_period > 0.0) {
             return Err("key `source.image_period`: must be a positive number of seconds".into());
+        }
+        if !matches!(
+            self.services.slam.mask_mode.as_str(),
+            "" | "filter" | "blackout"
+        ) {
+            return Err(format!(
+                "key `services.slam.mask_mode`: '{}' is not one of filter, blackout",
+                self.services.slam.mask_mode
+            ));
         }
         let c = &self.camera;
         if ![c.fx, c.fy].iter().all(|f| f.is_finite() && *f > 0.0)

@@ -6,11 +6,14 @@
 //!   about 1 m/s across the view, fixed in the world frame.
 //! - [`composite`]: draws people into one RGB-D frame with depth-consistent
 //!   occlusion and writes their instance ids into a label image.
+//! - [`room`]: the embedded default input, a rendered textured room with a
+//!   moving camera and exact depth and poses, people walked through it.
 //! - [`truth`]: scoring predicted masks against those ground-truth masks.
 //! - [`synth`]: `dynslam synth`, a TUM folder in, a dynamic TUM folder with
 //!   per-frame ground-truth masks and the objects' paths out.
 
 pub mod composite;
+pub mod room;
 pub mod sprites;
 pub mod synth;
 pub mod truth;

@@ -6,9 +6,12 @@
 //! - [`yolo`]: YOLOv8-seg output decoding (class-wise NMS, prototype masks),
 //!   pure Rust, testable without a model.
 //! - [`onnx`]: the YOLOv8-seg backend on ONNX Runtime, a `MaskModel`.
+//! - [`ground_truth`]: the exact masks of a synthesised sequence (the
+//!   ablation's reference row), a `MaskModel` too.
 //! - [`maskrcnn`]: the Mask R-CNN backend (torchvision ONNX export signature).
 
 pub mod coco;
+pub mod ground_truth;
 pub mod letterbox;
 pub mod maskrcnn;
 pub mod onnx;

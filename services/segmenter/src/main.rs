@@ -7,7 +7,8 @@ use std::process::ExitCode;
 
 use clap::Parser;
 use pipeline::mask_worker::{self, model_from_config, ModelFactory};
-use pipeline::runtime::{run_service, ServiceArgs};
+use pipeline::runtime::{run_service, InputError, ServiceArgs};
+use segmenter::ground_truth::GroundTruthMasks;
 use segmenter::maskrcnn::MaskRcnn;
 use segmenter::onnx::{init_runtime, YoloSeg, YoloSettings};
 use shared_types::{MaskSource, ServiceKind};
@@ -34,7 +35,19 @@ fn main() -> ExitCode {
                 &ctx.config.services.segmenter,
             )?))
         };
-        let model = model_from_config(&ctx, &[("yolov8-seg", yolo), ("maskrcnn", maskrcnn)])?;
+        let truth: &ModelFactory = &|ctx| match GroundTruthMasks::open(&ctx.config.source.path) {
+            Ok(m) => Ok(Box::new(m)),
+            // Not retried: the dataset will not grow masks.
+            Err(e) => Err(InputError(format!("{e:#}")).into()),
+        };
+        let model = model_from_config(
+            &ctx,
+            &[
+                ("yolov8-seg", yolo),
+                ("maskrcnn", maskrcnn),
+                ("ground-truth", truth),
+            ],
+        )?;
         mask_worker::run(ctx, MaskSource::Segmenter, model)
     })
 }

@@ -5,6 +5,7 @@
 pub mod core;
 pub mod eval;
 pub mod plot;
+pub mod ply;
 pub mod rgbd_tracker;
 pub mod scripted;
 pub mod tracker;

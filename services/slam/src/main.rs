@@ -23,6 +23,7 @@ use shared_types::{
     frame_flags, mask_flags, FrameHeader, MasksHeader, Route, RouteKind, ServiceKind, StageStamps,
     Track, TrackState,
 };
+use slam::ply::write_ply;
 use slam::rgbd_tracker::RgbdTracker;
 use slam::scripted::ScriptedTracker;
 use slam::tracker::{TrackInput, Tracker};
@@ -32,11 +33,17 @@ use slam::tracker::{TrackInput, Tracker};
 struct Args {
     #[command(flatten)]
     service: ServiceArgs,
+    /// Write the map here (PLY) when the service is stopped.
+    #[arg(long)]
+    map_out: Option<std::path::PathBuf>,
 }
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    run_service(ServiceKind::Slam, &args.service, run)
+    let map_out = args.map_out.clone();
+    run_service(ServiceKind::Slam, &args.service, move |ctx| {
+        run(ctx, map_out.as_deref())
+    })
 }
 
 fn tracker_from_config(ctx: &ServiceContext) -> Result<Box<dyn Tracker>> {
@@ -75,7 +82,7 @@ struct State {
     last: Option<Track>,
 }
 
-fn run(ctx: ServiceContext) -> Result<()> {
+fn run(ctx: ServiceContext, map_out: Option<&std::path::Path>) -> Result<()> {
     let mut tracker = tracker_from_config(&ctx)?;
     let frames = ctx.transport.slice_receiver::<FrameHeader>(Topic::Frames)?;
     let masks = ctx.transport.slice_receiver::<MasksHeader>(Topic::Masks)?;
@@ -99,6 +106,13 @@ fn run(ctx: ServiceContext) -> Result<()> {
     };
     loop {
         if wait(&ws, Duration::from_secs(1))? == Wake::Terminate {
+            if let Some(path) = map_out {
+                let points = tracker.map_points();
+                write_ply(path, &points).map_err(|e| {
+                    anyhow::anyhow!("cannot write the map to {}: {e}", path.display())
+                })?;
+                tracing::info!(points = points.len(), "map written to {}", path.display());
+            }
             return Ok(());
         }
         frames.clear_wakeups();

@@ -77,13 +77,13 @@ pub fn trajectory_png(pairs: &[(Point3<f64>, Point3<f64>)]) -> RgbImage {
     img
 }
 
-fn put(img: &mut RgbImage, x: f64, y: f64, c: Rgb<u8>) {
+pub fn put(img: &mut RgbImage, x: f64, y: f64, c: Rgb<u8>) {
     if x >= 0.0 && y >= 0.0 && (x as u32) < img.width() && (y as u32) < img.height() {
         img.put_pixel(x as u32, y as u32, c);
     }
 }
 
-fn line(img: &mut RgbImage, a: (f64, f64), b: (f64, f64), c: Rgb<u8>) {
+pub fn line(img: &mut RgbImage, a: (f64, f64), b: (f64, f64), c: Rgb<u8>) {
     let steps = ((b.0 - a.0).abs().max((b.1 - a.1).abs()).ceil() as usize).max(1);
     for s in 0..=steps {
         let t = s as f64 / steps as f64;

@@ -6,12 +6,18 @@ use shared_types::TrackState;
 
 use crate::core::camera::Camera;
 use crate::core::system::{SlamParams, System};
+use crate::ply::ColouredPoint;
 use crate::tracker::{TrackInput, TrackOutcome, Tracker};
 
 pub struct RgbdTracker {
     system: System,
     /// The frame's depth as u16 (the shared-memory payload is bytes).
     depth: Vec<u16>,
+    /// `mask_mode = "blackout"`: masked pixels are painted black instead of
+    /// filtering keypoints (an ablation: the paint's edges become corners).
+    blackout: bool,
+    /// The painted copy of the frame in blackout mode.
+    painted: Vec<u8>,
 }
 
 impl RgbdTracker {
@@ -20,6 +26,8 @@ impl RgbdTracker {
         Self {
             system: System::new(SlamParams::default(), camera),
             depth: Vec::new(),
+            blackout: config.services.slam.mask_mode == "blackout",
+            painted: Vec::new(),
         }
     }
 }
@@ -43,8 +51,20 @@ impl Tracker for RgbdTracker {
             // the monocular initialisation exists).
             None => self.depth.resize(w * h, 0),
         }
-        let mask = input.masks.map(|m| m.labels);
-        let r = self.system.track_rgbd(frame.rgb, &self.depth, mask, w, h);
+        let mut mask = input.masks.map(|m| m.labels);
+        let mut rgb = frame.rgb;
+        if let (true, Some(labels)) = (self.blackout, mask) {
+            self.painted.clear();
+            self.painted.extend_from_slice(frame.rgb);
+            for (px, &l) in self.painted.chunks_exact_mut(3).zip(labels) {
+                if l != 0 {
+                    px.fill(0);
+                }
+            }
+            rgb = &self.painted;
+            mask = None;
+        }
+        let r = self.system.track_rgbd(rgb, &self.depth, mask, w, h);
         let (t, q) = (r.pose_wc.translation.vector, r.pose_wc.rotation);
         TrackOutcome {
             pose: [t.x, t.y, t.z, q.i, q.j, q.k, q.w],
@@ -55,5 +75,18 @@ impl Tracker for RgbdTracker {
             next_needs_keyframe: r.next_needs_keyframe || r.state == TrackState::Lost,
             counts: r.counts,
         }
+    }
+
+    fn map_points(&self) -> Vec<ColouredPoint> {
+        self.system
+            .points
+            .iter()
+            // Culled points keep their slot but are no longer matched.
+            .filter(|p| p.visible > 0)
+            .map(|p| ColouredPoint {
+                position: p.position.into(),
+                colour: p.colour,
+            })
+            .collect()
     }
 }

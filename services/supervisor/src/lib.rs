@@ -2,10 +2,15 @@
 //! frame by SLAM's keyframe flag, records every frame's fate and reports
 //! per-stage latency. The `dynslam` binary is its command line.
 
+pub mod ablation;
+pub mod charts;
 pub mod children;
+pub mod default_scene;
 pub mod latency;
 pub mod mask_eval;
+pub mod mask_record;
 pub mod outputs;
+pub mod report;
 pub mod routing;
 pub mod run;
 pub mod run_dir;

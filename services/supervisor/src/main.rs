@@ -30,7 +30,9 @@ enum Command {
     /// Run the whole pipeline on a dataset and write a run folder.
     Run {
         /// TUM RGB-D folder (or image folder with `--source images`);
-        /// default: `source.path` of the config.
+        /// default: `source.path` of the config, and when that is empty too
+        /// the embedded default scene (a rendered room with people walking
+        /// through it, rendered once into OUTPUT_DIR/default-scene-v1).
         dataset: Option<PathBuf>,
         /// Pipeline configuration.
         #[arg(long, default_value = "configs/pipeline.toml")]
@@ -54,6 +56,31 @@ enum Command {
     /// Continue a run whose supervisor was stopped or killed.
     Resume {
         /// The run folder to continue.
+        run_dir: PathBuf,
+    },
+    /// Ablation on a dynamic sequence: the whole pipeline without masks,
+    /// with ground-truth masks, segmenter on every frame, the product's
+    /// routing, and blackout; one table of ATE, tracked %, mask IoU, ms/frame.
+    Ablate {
+        /// A folder written by `dynslam synth` (ground-truth masks needed
+        /// for row b and the IoU column).
+        dataset: PathBuf,
+        #[arg(long, default_value = "configs/pipeline.toml")]
+        config: PathBuf,
+        /// Where the run folders and ablation.md go (default: `run.output_dir`).
+        #[arg(long)]
+        output_dir: Option<PathBuf>,
+        /// Play at most this many frames per run.
+        #[arg(long)]
+        limit: Option<u64>,
+        /// Run only these rows (static, a, b, c, d, e); default all.
+        #[arg(long, value_delimiter = ',')]
+        only: Vec<String>,
+    },
+    /// Write a run folder's report again (report.md and plots/), e.g. after
+    /// the dataset's ground truth was added.
+    Report {
+        /// The run folder.
         run_dir: PathBuf,
     },
     /// Trajectory accuracy: ATE and RPE of an estimate against ground truth
@@ -176,11 +203,11 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             if let Some(d) = dataset {
                 cfg.source.path = d;
             }
+            let out = output_dir.unwrap_or_else(|| cfg.run.output_dir.clone());
             if cfg.source.path.as_os_str().is_empty() {
-                anyhow::bail!(
-                    "no dataset given: pass a folder (dynslam run PATH) or set source.path in {}",
-                    config.display()
-                );
+                // No dataset: the embedded default scene (rendered once).
+                cfg.source.kind = pipeline::config::SourceKind::Tum;
+                cfg.source.path = supervisor::default_scene::ensure(&out, &cfg)?;
             }
             if !cfg.source.path.is_dir() {
                 anyhow::bail!(
@@ -210,12 +237,54 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                 None => run_dir::new_run_id(),
             };
             shared_types::names::RunNames::new(&id).map_err(anyhow::Error::msg)?;
-            let out = output_dir.unwrap_or_else(|| cfg.run.output_dir.clone());
             let dir = run_dir::create(&out, &id, &cfg)?;
             eprintln!("run {id}: {}", dir.display());
             Ok(report_run(&execute(&dir)?))
         }
         Command::Resume { run_dir } => Ok(report_run(&execute(&run_dir)?)),
+        Command::Ablate {
+            dataset,
+            config,
+            output_dir,
+            limit,
+            only,
+        } => {
+            let mut cfg = PipelineConfig::load(&config)?;
+            if let Some(l) = limit {
+                cfg.source.limit = l;
+            }
+            let known = ["static", "a", "b", "c", "d", "e"];
+            if let Some(bad) = only.iter().find(|o| !known.contains(&o.as_str())) {
+                anyhow::bail!("--only: unknown row '{bad}' (known: {})", known.join(", "));
+            }
+            let out = output_dir.unwrap_or_else(|| cfg.run.output_dir.clone());
+            let rows = supervisor::ablation::run(&dataset, &cfg, &out, &only)?;
+            let table = supervisor::ablation::table(&rows);
+            let md = out.join("ablation.md");
+            let text = format!(
+                "# dynslam ablate {}\n\n{table}\nRun folders: {}\n",
+                dataset.display(),
+                rows.iter()
+                    .map(|r| format!("`{}`", r.run_dir.display()))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+            std::fs::write(&md, text).with_context(|| format!("cannot write {}", md.display()))?;
+            std::fs::write(
+                out.join("ablation.json"),
+                serde_json::to_string_pretty(&rows)?,
+            )?;
+            eprintln!("{table}");
+            println!("{}", md.display());
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Report { run_dir } => {
+            let (_, cfg) = run_dir::open(&run_dir)?;
+            let (_, rows) = supervisor::outputs::FrameLog::open(&run_dir)?;
+            supervisor::report::write(&run_dir, &cfg, &rows)?;
+            println!("{}", supervisor::report::report_path(&run_dir).display());
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Eval {
             gt,
             est,
@@ -283,6 +352,21 @@ fn report_run(summary: &RunSummary) -> ExitCode {
             ""
         }
     );
+    if let Some(r) = &summary.report {
+        if let Some(e) = &r.eval {
+            eprintln!(
+                "ATE {:.4} m (RMSE, SE(3) aligned, {} poses), RPE/frame {:.4} m {:.3} deg",
+                e.ate_rmse_m, e.pairs, e.rpe_trans_rmse_m, e.rpe_rot_rmse_deg
+            );
+        }
+        if let Some(iou) = r.masks.as_ref().and_then(|m| m.all_frames_iou) {
+            eprintln!("mask IoU against ground truth, every frame with a person: {iou:.3}");
+        }
+        eprintln!(
+            "report: {}",
+            supervisor::report::report_path(&summary.run_dir).display()
+        );
+    }
     println!("{}", summary.run_dir.display());
     if summary.interrupted {
         ExitCode::from(130)

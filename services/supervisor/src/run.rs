@@ -11,13 +11,15 @@ use std::time::{Duration, Instant};
 use anyhow::{anyhow, bail, Result};
 use pipeline::clock::now_ns;
 use pipeline::config::{ClockMode, PipelineConfig};
+use pipeline::progress::Progress;
 use pipeline::transport::{
     attach, cleanup_dead_nodes, remove_run_files, run_files, wait, waitset, Transport, Wake,
 };
+use pipeline::views::MasksView;
 use shared_types::names::{RunNames, Topic};
 use shared_types::{
-    frame_flags, read_error_text, Control, FrameHeader, Lifecycle, MaskSource, Route, RouteKind,
-    ServiceKind, Track, TrackState,
+    frame_flags, read_error_text, Control, FrameHeader, Lifecycle, MaskSource, MasksHeader, Route,
+    RouteKind, ServiceKind, Track, TrackState,
 };
 
 use crate::children::{
@@ -25,14 +27,20 @@ use crate::children::{
     RestartDecision, RestartPolicy,
 };
 use crate::latency;
+use crate::mask_record::MaskRecorder;
 use crate::outputs::{write_tum, FrameLog, FrameRow};
 use crate::routing::{Availability, Router};
 use crate::run_dir::{self, ChildStatus, Status};
 
+/// The SLAM service writes its map here (in the run folder) when stopped.
+pub const MAP_FILE: &str = "map.ply";
+
 /// How a run ended.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone)]
 pub struct RunSummary {
     pub run_dir: PathBuf,
+    /// The report's figures (None when it could not be written).
+    pub report: Option<crate::report::ReportSummary>,
     pub frames: u64,
     pub tracked: u64,
     pub restarts: u64,
@@ -184,6 +192,10 @@ impl Supervisor {
         if kind == ServiceKind::CameraReader {
             args.push("--start-seq".into());
             args.push(self.next_seq.to_string());
+        }
+        if kind == ServiceKind::Slam {
+            args.push("--map-out".into());
+            args.push(run_dir.join(MAP_FILE).to_string_lossy().into_owned());
         }
         let svc = self.svc(kind);
         let program = svc.program.clone();
@@ -647,6 +659,8 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
     let transport = Transport::open(&sup.names, "supervisor")?;
     let frames = transport.slice_receiver::<FrameHeader>(Topic::Frames)?;
     let tracks = transport.receiver::<Track>(Topic::Tracks)?;
+    let masks = transport.slice_receiver::<MasksHeader>(Topic::Masks)?;
+    let mut recorder = MaskRecorder::start(&sup.run_dir)?;
     let lifecycle = transport.receiver::<Lifecycle>(Topic::Lifecycle)?;
     let routes = transport.sender::<Route>(Topic::Routes)?;
     let control = transport.sender::<Control>(Topic::Control)?;
@@ -654,6 +668,7 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
     let _a = attach(&ws, &frames)?;
     let _b = attach(&ws, &tracks)?;
     let _c = attach(&ws, &lifecycle)?;
+    let _d = attach(&ws, &masks)?;
     let period = Duration::from_millis(sup.config.supervisor.watch_period_ms);
     let lockstep = sup.config.run.mode == ClockMode::Lockstep;
 
@@ -664,7 +679,13 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
     ] {
         sup.start(kind);
     }
-    let mut last_progress = Instant::now();
+    // A progress bar over the frames the source will play (known up front
+    // from its lists; the reader announces the exact end of the stream).
+    let expected = camera_reader::source::configured_frames(&sup.config.source)
+        .map(|f| f.len() as u64)
+        .unwrap_or(0);
+    let mut progress = Progress::new("frames", expected);
+    let mut shown = 0usize;
     let mut last_sweep = Instant::now();
     let mut end_seen_at: Option<Instant> = None;
     let mut interrupted = false;
@@ -709,6 +730,13 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
         for t in tracks.drain()? {
             sup.on_track(t)?;
         }
+        masks.clear_wakeups();
+        while let Some(sample) = masks.next_sample()? {
+            match MasksView::new(sample.user_header(), sample.payload()) {
+                Ok(view) => recorder.record(&view),
+                Err(e) => tracing::warn!("not recording masks: {e:#}"),
+            }
+        }
         frames.clear_wakeups();
         while let Some(sample) = frames.next_sample()? {
             let header = *sample.user_header();
@@ -729,6 +757,10 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
             cleanup_dead_nodes(&sup.names)?;
             last_sweep = Instant::now();
         }
+        if expected > 0 && sup.rows.len() != shown {
+            shown = sup.rows.len();
+            progress.set(shown as u64);
+        }
         if sup.complete() {
             break;
         }
@@ -743,23 +775,18 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
                 }
             }
         }
-        if last_progress.elapsed() > Duration::from_secs(2) {
-            tracing::info!(
-                "progress: {} / {} frames, {} restarts",
-                sup.rows.len(),
-                sup.total
-                    .map(|t| t.to_string())
-                    .unwrap_or_else(|| "?".into()),
-                sup.restarts
-            );
-            last_progress = Instant::now();
-        }
+
         if sup.status_dirty {
             sup.write_status("running", None);
         }
     }
+    progress.finish();
     sup.stop_all();
     sup.watch_children(true)?;
+    let skipped = recorder.finish()?;
+    if skipped > 0 {
+        tracing::warn!("{skipped} sets of masks were not recorded (the writer fell behind)");
+    }
     Ok(interrupted)
 }
 
@@ -784,7 +811,16 @@ fn finish_outputs(sup: &Supervisor, interrupted: bool) -> Result<RunSummary> {
         latency::trace_json(&rows).to_string(),
     )?;
     let table = latency::format_table(&summary);
+    // The report never fails a run whose outputs are written.
+    let report = match crate::report::write(dir, &sup.config, &rows) {
+        Ok(r) => Some(r),
+        Err(e) => {
+            tracing::warn!("cannot write the report: {e:#}");
+            None
+        }
+    };
     Ok(RunSummary {
+        report,
         run_dir: dir.clone(),
         frames: rows.len() as u64,
         tracked: tracked as u64,

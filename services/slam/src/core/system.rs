@@ -63,6 +63,8 @@ pub struct MapPoint {
     /// Frames in which it was predicted visible / actually matched.
     pub visible: u32,
     pub found: u32,
+    /// Colour of the pixel it was created from (for the PLY map).
+    pub colour: [u8; 3],
 }
 
 #[derive(Debug, Clone)]
@@ -80,6 +82,8 @@ struct Frame {
     un: Vec<(f64, f64)>,
     descs: Vec<Descriptor>,
     depth: Vec<Option<f64>>,
+    /// Colour under each keypoint.
+    colours: Vec<[u8; 3]>,
     grid: Grid,
     /// Undistorted image extent (x0, x1, y0, y1).
     bounds: Bounds,
@@ -240,12 +244,21 @@ impl System {
             (d >= self.params.min_depth_m && d <= self.params.max_depth_m).then_some(d)
         };
         let depths: Vec<Option<f64>> = kps.iter().map(depth_of).collect();
+        let colours: Vec<[u8; 3]> = kps
+            .iter()
+            .map(|k| {
+                let i =
+                    3 * ((k.y as usize).min(height - 1) * width + (k.x as usize).min(width - 1));
+                [rgb[i], rgb[i + 1], rgb[i + 2]]
+            })
+            .collect();
         let grid = Grid::new(&un, width, height);
         let frame = Frame {
             kps,
             un,
             descs,
             depth: depths,
+            colours,
             grid,
             bounds: self.bounds(width, height),
         };
@@ -536,6 +549,7 @@ impl System {
                     last_keyframe: id,
                     visible: 1,
                     found: 1,
+                    colour: frame.colours[k],
                 });
                 observed.push(self.points.len() - 1);
             }

@@ -1,0 +1,222 @@
+//! `dynslam ablate`: the same dynamic sequence through the whole pipeline
+//! under each way of handling dynamic objects, one table of ATE, tracked
+//! frames, mask IoU and latency.
+//!
+//! Rows: (a) no masks, (b) ground-truth masks on every frame, (c) the
+//! segmenter on every frame, (d) the product's routing (segmenter on
+//! keyframes, propagator otherwise), (e) the product's routing with masked
+//! pixels blacked out instead of keypoints filtered; and, when the sequence
+//! was made by `dynslam synth` from a folder that still exists, the static
+//! original without people as the reference.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use pipeline::config::PipelineConfig;
+use serde::Serialize;
+
+use crate::run::execute;
+use crate::run_dir;
+
+/// One configuration of the ablation.
+#[derive(Debug, Clone)]
+pub struct Variant {
+    pub key: &'static str,
+    pub label: &'static str,
+    /// A different dataset (the static original), or the ablated sequence.
+    pub dataset: Option<PathBuf>,
+    pub apply: fn(&mut PipelineConfig),
+}
+
+/// The variants in table order.
+pub fn variants(static_original: Option<PathBuf>) -> Vec<Variant> {
+    let mut v = Vec::new();
+    if let Some(original) = static_original {
+        v.push(Variant {
+            key: "static",
+            label: "static original (no people), product routing",
+            dataset: Some(original),
+            apply: |_| {},
+        });
+    }
+    v.extend([
+        Variant {
+            key: "a",
+            label: "(a) no masks",
+            dataset: None,
+            apply: |c| c.routing.no_masks = true,
+        },
+        Variant {
+            key: "b",
+            label: "(b) ground-truth masks, every frame",
+            dataset: None,
+            apply: |c| {
+                c.routing.segment_every_frame = true;
+                c.services.segmenter.backend = "ground-truth".into();
+            },
+        },
+        Variant {
+            key: "c",
+            label: "(c) segmenter on every frame",
+            dataset: None,
+            apply: |c| c.routing.segment_every_frame = true,
+        },
+        Variant {
+            key: "d",
+            label: "(d) product: segmenter on keyframes, propagator between",
+            dataset: None,
+            apply: |_| {},
+        },
+        Variant {
+            key: "e",
+            label: "(e) product routing, masked pixels blacked out",
+            dataset: None,
+            apply: |c| c.services.slam.mask_mode = "blackout".into(),
+        },
+    ]);
+    v
+}
+
+/// One row of the table.
+#[derive(Debug, Clone, Serialize)]
+pub struct AblationRow {
+    pub key: String,
+    pub label: String,
+    pub run_dir: PathBuf,
+    pub frames: usize,
+    pub tracked_pct: f64,
+    pub ate_rmse_m: Option<f64>,
+    pub ate_max_m: Option<f64>,
+    /// Mean per-person IoU over every frame with a person.
+    pub mask_iou: Option<f64>,
+    /// Median ms per frame: end to end, and SLAM's tracking alone.
+    pub end_to_end_ms_p50: Option<f64>,
+    pub track_ms_p50: Option<f64>,
+}
+
+/// The static sequence a `dynslam synth` folder was made from, if it still
+/// exists.
+pub fn static_original(dataset: &Path) -> Option<PathBuf> {
+    let text = std::fs::read_to_string(dataset.join("objects.json")).ok()?;
+    let v: serde_json::Value = serde_json::from_str(&text).ok()?;
+    let input = PathBuf::from(v.get("input")?.as_str()?);
+    input.is_dir().then_some(input)
+}
+
+/// Runs every variant on `dataset`; run folders go to `output_dir`.
+pub fn run(
+    dataset: &Path,
+    base: &PipelineConfig,
+    output_dir: &Path,
+    only: &[String],
+) -> Result<Vec<AblationRow>> {
+    let dataset = dataset
+        .canonicalize()
+        .with_context(|| format!("dataset folder {} does not exist", dataset.display()))?;
+    let batch = run_dir::new_run_id();
+    let mut rows = Vec::new();
+    let all = variants(static_original(&dataset));
+    for v in all
+        .iter()
+        .filter(|v| only.is_empty() || only.iter().any(|o| o == v.key))
+    {
+        let mut cfg = base.clone();
+        cfg.source.path = v.dataset.clone().unwrap_or_else(|| dataset.clone());
+        (v.apply)(&mut cfg);
+        let id = format!("ablate-{batch}-{}", v.key);
+        let dir = run_dir::create(output_dir, &id, &cfg)?;
+        eprintln!("ablation {}: {} -> {}", v.key, v.label, dir.display());
+        let summary = execute(&dir).with_context(|| format!("ablation run {}", v.label))?;
+        let report = summary
+            .report
+            .with_context(|| format!("ablation run {}: no report", v.label))?;
+        rows.push(AblationRow {
+            key: v.key.into(),
+            label: v.label.into(),
+            run_dir: dir,
+            frames: report.frames,
+            tracked_pct: 100.0 * report.tracked_fraction(),
+            ate_rmse_m: report.eval.as_ref().map(|e| e.ate_rmse_m),
+            ate_max_m: report.eval.as_ref().map(|e| e.ate_max_m),
+            mask_iou: report.masks.as_ref().and_then(|m| m.all_frames_iou),
+            end_to_end_ms_p50: report.stage_p50("end_to_end"),
+            track_ms_p50: report.stage_p50("track"),
+        });
+    }
+    Ok(rows)
+}
+
+/// The table as Markdown.
+pub fn table(rows: &[AblationRow]) -> String {
+    let f = |v: Option<f64>, d: usize| v.map_or("-".to_string(), |v| format!("{v:.d$}"));
+    let mut t = String::from(
+        "| variant | ATE RMSE (m) | ATE max (m) | tracked | mask IoU | ms/frame (end to end, p50) | SLAM track (p50 ms) |\n|---|---|---|---|---|---|---|\n",
+    );
+    for r in rows {
+        let _ = writeln!(
+            t,
+            "| {} | {} | {} | {:.1} % | {} | {} | {} |",
+            r.label,
+            f(r.ate_rmse_m, 4),
+            f(r.ate_max_m, 3),
+            r.tracked_pct,
+            if r.key == "a" || r.key == "static" {
+                "-".to_string()
+            } else {
+                f(r.mask_iou, 3)
+            },
+            f(r.end_to_end_ms_p50, 1),
+            f(r.track_ms_p50, 1)
+        );
+    }
+    t
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn variants_change_what_their_label_says() {
+        let base = PipelineConfig::parse("").unwrap();
+        let vs = variants(None);
+        assert_eq!(
+            vs.iter().map(|v| v.key).collect::<Vec<_>>(),
+            ["a", "b", "c", "d", "e"]
+        );
+        let applied = |k: &str| {
+            let mut c = base.clone();
+            (vs.iter().find(|v| v.key == k).unwrap().apply)(&mut c);
+            c
+        };
+        assert!(applied("a").routing.no_masks);
+        assert_eq!(applied("b").services.segmenter.backend, "ground-truth");
+        assert!(applied("b").routing.segment_every_frame);
+        assert!(applied("c").routing.segment_every_frame);
+        assert_eq!(applied("d"), base);
+        assert_eq!(applied("e").services.slam.mask_mode, "blackout");
+        assert_eq!(variants(Some(PathBuf::from("/x")))[0].key, "static");
+    }
+
+    #[test]
+    fn table_has_a_row_per_run() {
+        let row = AblationRow {
+            key: "d".into(),
+            label: "(d) product".into(),
+            run_dir: PathBuf::from("/r"),
+            frames: 10,
+            tracked_pct: 100.0,
+            ate_rmse_m: Some(0.0123),
+            ate_max_m: Some(0.05),
+            mask_iou: Some(0.5),
+            end_to_end_ms_p50: Some(60.0),
+            track_ms_p50: None,
+        };
+        let t = table(&[row]);
+        assert!(
+            t.contains("| (d) product | 0.0123 | 0.050 | 100.0 % | 0.500 | 60.0 | - |"),
+            "{t}"
+        );
+    }
+}

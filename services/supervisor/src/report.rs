@@ -1,0 +1,499 @@
+//! The run report: `report.md` and the PNGs under `plots/`, written at the
+//! end of every run (and again by `dynslam report RUN_DIR`) from what the
+//! run folder holds: `frames.csv`, `masks.csv` + `masks/`, `map.ply`, and
+//! the dataset's ground truth (`groundtruth.txt`, and `masks.txt` for
+//! synthesised sequences) where it exists.
+//!
+//! Each part is optional: what cannot be made (no ground truth, an image
+//! folder without depth) is said in the report instead of failing the run.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use camera_reader::source::{configured_frames, FrameEntry, MaskList};
+use image::{imageops, GrayImage, Rgb, RgbImage};
+use pipeline::config::PipelineConfig;
+use serde::Serialize;
+use slam::eval::{evaluate, EvalOptions, EvalSummary};
+use slam::trajectory::Trajectory;
+
+use crate::charts::{chart, histogram, stack, text, Series, Style, BLUE, GREEN, GREY, RED};
+use crate::latency::{self, StageSummary, STAGES};
+use crate::mask_record::{mask_file, read_rows, MaskRow};
+use crate::outputs::FrameRow;
+
+pub const REPORT_FILE: &str = "report.md";
+pub const EVAL_FILE: &str = "eval.json";
+pub const PLOTS_DIR: &str = "plots";
+
+/// A ground-truth person is scored where it covers at least this many
+/// pixels (as `dynslam masks-eval`'s default).
+const MIN_PERSON_PX: usize = 2000;
+
+/// Mask quality of a run against ground-truth masks.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct MaskScores {
+    /// Mean per-person IoU of the segmenter's masks (keyframes).
+    pub segmenter_iou: Option<f64>,
+    pub segmenter_samples: usize,
+    /// Mean per-person IoU of the propagator's masks.
+    pub propagator_iou: Option<f64>,
+    pub propagator_samples: usize,
+    /// Mean per-person IoU over every frame with a person, whatever the
+    /// frame was routed to (a frame without masks scores 0).
+    pub all_frames_iou: Option<f64>,
+    pub all_frames_samples: usize,
+}
+
+/// The figures of a report (also returned to callers such as the ablation).
+#[derive(Debug, Clone, Serialize)]
+pub struct ReportSummary {
+    pub frames: usize,
+    pub tracked: usize,
+    pub eval: Option<EvalSummary>,
+    pub masks: Option<MaskScores>,
+    pub latency: Vec<StageSummary>,
+}
+
+impl ReportSummary {
+    pub fn tracked_fraction(&self) -> f64 {
+        self.tracked as f64 / self.frames.max(1) as f64
+    }
+
+    pub fn stage_p50(&self, stage: &str) -> Option<f64> {
+        self.latency
+            .iter()
+            .find(|s| s.stage == stage && s.count > 0)
+            .map(|s| s.p50_ms)
+    }
+}
+
+/// Writes the report of the run in `run_dir`; `rows` are its frames.
+pub fn write(run_dir: &Path, config: &PipelineConfig, rows: &[FrameRow]) -> Result<ReportSummary> {
+    let plots = run_dir.join(PLOTS_DIR);
+    std::fs::create_dir_all(&plots)
+        .with_context(|| format!("cannot create {}", plots.display()))?;
+    let dataset = &config.source.path;
+    let mut md = String::new();
+    let mut notes: Vec<String> = Vec::new();
+    let tracked = rows.iter().filter(|r| r.is_tracked()).count();
+    let latency = latency::summarize(rows);
+
+    // Trajectory accuracy.
+    let eval = match trajectory_eval(run_dir, dataset, rows) {
+        Ok(e) => e,
+        Err(e) => {
+            notes.push(format!("trajectory evaluation: {e:#}"));
+            None
+        }
+    };
+    if let Some(e) = &eval {
+        std::fs::write(run_dir.join(EVAL_FILE), serde_json::to_string_pretty(e)?)?;
+        slam::plot::write_trajectory_png(&plots.join("trajectory.png"), &e.positions)?;
+        let t0 = e.ate_series.first().map_or(0.0, |p| p.0);
+        let series = Series {
+            points: e.ate_series.iter().map(|(t, v)| (t - t0, *v)).collect(),
+            colour: RED,
+            style: Style::Line,
+        };
+        save(
+            &chart(900, 260, &[series], None),
+            &plots.join("ate_over_time.png"),
+        )?;
+    }
+
+    // Masks against ground truth, and the strip of frames.
+    let mask_rows = read_rows(run_dir)?;
+    let frames = configured_frames(&config.source).ok();
+    let truth = MaskList::open(dataset).ok().flatten();
+    let (scores, ious) = match &truth {
+        Some(t) => {
+            let (s, i) = mask_scores(run_dir, rows, &mask_rows, t);
+            (Some(s), i)
+        }
+        None => (None, Vec::new()),
+    };
+    if !ious.is_empty() {
+        let by = |src: &str, colour| Series {
+            points: ious
+                .iter()
+                .filter(|(_, s, _)| s == src)
+                .map(|(seq, _, v)| (*seq as f64, *v))
+                .collect(),
+            colour,
+            style: Style::Dots,
+        };
+        save(
+            &chart(
+                900,
+                260,
+                &[
+                    by("segmenter", RED),
+                    by("propagator", BLUE),
+                    by("none", GREY),
+                ],
+                Some(1.0),
+            ),
+            &plots.join("mask_iou.png"),
+        )?;
+    }
+    let strip_made = match &frames {
+        Some(f) => match mask_strip(run_dir, f, rows, &mask_rows, truth.as_ref()) {
+            Ok(img) => {
+                save(&img, &plots.join("masks.png"))?;
+                true
+            }
+            Err(e) => {
+                notes.push(format!("mask strip: {e:#}"));
+                false
+            }
+        },
+        None => false,
+    };
+
+    // Latency histograms of the stages that ran.
+    let per_row: Vec<[Option<f64>; 10]> = rows.iter().map(latency::stage_ms).collect();
+    let shown = ["end_to_end", "track", "segmenter", "propagator", "decode"];
+    let mut panels = Vec::new();
+    let mut panel_names = Vec::new();
+    for name in shown {
+        let i = STAGES
+            .iter()
+            .position(|s| *s == name)
+            .expect("a known stage");
+        let v: Vec<f64> = per_row.iter().filter_map(|r| r[i]).collect();
+        if v.is_empty() {
+            continue;
+        }
+        let p99 = latency
+            .iter()
+            .find(|s| s.stage == name)
+            .map_or(1.0, |s| s.p99_ms);
+        panels.push(histogram(900, 160, &v, (p99 * 1.25).max(1.0), BLUE));
+        panel_names.push(name);
+    }
+    if !panels.is_empty() {
+        save(&stack(&panels), &plots.join("latency.png"))?;
+    }
+
+    // report.md
+    let title = run_dir
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    writeln!(md, "# dynslam run {title}\n")?;
+    writeln!(md, "Dataset: `{}`  ", dataset.display())?;
+    writeln!(
+        md,
+        "Frames: {}, tracked {} ({:.1} %); SLAM backend `{}`, segmenter `{}`, propagator `{}`{}\n",
+        rows.len(),
+        tracked,
+        100.0 * tracked as f64 / rows.len().max(1) as f64,
+        config.services.slam.backend,
+        config.services.segmenter.backend,
+        config.services.propagator.backend,
+        if config.routing.no_masks {
+            " (run without masks)"
+        } else {
+            ""
+        }
+    )?;
+    writeln!(md, "## Trajectory\n")?;
+    match &eval {
+        Some(e) => {
+            writeln!(md, "| | value |\n|---|---|")?;
+            writeln!(md, "| poses compared | {} |", e.pairs)?;
+            writeln!(
+                md,
+                "| ATE RMSE (SE(3) aligned) | {:.4} m |\n| ATE mean / median / max | {:.4} / {:.4} / {:.4} m |",
+                e.ate_rmse_m, e.ate_mean_m, e.ate_median_m, e.ate_max_m
+            )?;
+            writeln!(
+                md,
+                "| RPE per frame | {:.4} m, {:.3} deg |\n| RPE per {:.0} s | {:.4} m, {:.3} deg |\n",
+                e.rpe_trans_rmse_m,
+                e.rpe_rot_rmse_deg,
+                e.rpe_interval_s,
+                e.rpe_interval_trans_rmse_m,
+                e.rpe_interval_rot_rmse_deg
+            )?;
+            writeln!(md, "![trajectory](plots/trajectory.png)\n")?;
+            writeln!(md, "Ground truth (grey) and the SE(3)-aligned estimate (red), top view x-y (left) and side view x-z (right), same scale on both axes; the green square is the start. Full figures in `{EVAL_FILE}`.\n")?;
+            writeln!(md, "![ATE over time](plots/ate_over_time.png)\n")?;
+            writeln!(md, "Absolute position error (m, vertical) of each frame against time since the first frame (s, horizontal).\n")?;
+        }
+        None => writeln!(md, "No ground truth: no accuracy figures.\n")?,
+    }
+    writeln!(md, "## Dynamic masks\n")?;
+    let segmented = mask_rows.iter().filter(|m| m.source == "segmenter").count();
+    let propagated = mask_rows
+        .iter()
+        .filter(|m| m.source == "propagator")
+        .count();
+    writeln!(
+        md,
+        "Frames segmented {segmented}, propagated {propagated}, without masks {}; features removed by masks: {} in total.\n",
+        rows.len().saturating_sub(segmented + propagated),
+        rows.iter().map(|r| r.features_masked as u64).sum::<u64>()
+    )?;
+    if let Some(s) = &scores {
+        let f = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.3}"));
+        writeln!(
+            md,
+            "Mean IoU per ground-truth person (people covering >= {MIN_PERSON_PX} px):\n"
+        )?;
+        writeln!(
+            md,
+            "| masks from | mean IoU | person-frames |\n|---|---|---|"
+        )?;
+        writeln!(
+            md,
+            "| segmenter (keyframes) | {} | {} |",
+            f(s.segmenter_iou),
+            s.segmenter_samples
+        )?;
+        writeln!(
+            md,
+            "| propagator | {} | {} |",
+            f(s.propagator_iou),
+            s.propagator_samples
+        )?;
+        writeln!(
+            md,
+            "| every frame with a person | {} | {} |\n",
+            f(s.all_frames_iou),
+            s.all_frames_samples
+        )?;
+        if !ious.is_empty() {
+            writeln!(md, "![mask IoU](plots/mask_iou.png)\n")?;
+            writeln!(md, "IoU (vertical, 0-1) per person and frame (horizontal: frame number): segmenter red, propagator blue, frames without masks grey.\n")?;
+        }
+    }
+    if strip_made {
+        writeln!(md, "![masks](plots/masks.png)\n")?;
+        writeln!(md, "Six frames (number top left) with the masks SLAM used: segmenter masks tinted red, propagated masks blue{}.\n",
+            if truth.is_some() { ", ground-truth outlines green" } else { "" })?;
+    }
+    writeln!(md, "## Latency\n")?;
+    writeln!(md, "```\n{}```\n", latency::format_table(&latency))?;
+    if !panel_names.is_empty() {
+        writeln!(md, "![latency](plots/latency.png)\n")?;
+        writeln!(
+            md,
+            "Histograms of ms per frame (horizontal) for, top to bottom: {}. Counts vertical. Full trace: `trace.json` (chrome://tracing, Perfetto).\n",
+            panel_names.join(", ")
+        )?;
+    }
+    writeln!(md, "## Files\n")?;
+    writeln!(md, "- `trajectory.txt`, `keyframes.txt`: TUM format (timestamp tx ty tz qx qy qz qw), world from camera")?;
+    writeln!(md, "- `frames.csv`: one row per frame (state, route, pose, features, features removed by masks, inliers, stage timestamps)")?;
+    writeln!(md, "- `masks/`, `masks.csv`: the label image SLAM got for each frame (0 background, i+1 instance i)")?;
+    let map = run_dir.join(crate::run::MAP_FILE);
+    match slam::ply::read_ply(&map) {
+        Ok(points) => writeln!(
+            md,
+            "- `map.ply`: {} map points with colour (world frame)",
+            points.len()
+        )?,
+        Err(_) => writeln!(
+            md,
+            "- no `map.ply` (the SLAM backend keeps no map, or it was not stopped cleanly)"
+        )?,
+    }
+    writeln!(
+        md,
+        "- `latency_summary.json`, `trace.json`, `status.json`, `config.toml`"
+    )?;
+    if !notes.is_empty() {
+        writeln!(md, "\n## Not in this report\n")?;
+        for n in &notes {
+            writeln!(md, "- {n}")?;
+        }
+    }
+    let path = run_dir.join(REPORT_FILE);
+    std::fs::write(&path, md).with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(ReportSummary {
+        frames: rows.len(),
+        tracked,
+        eval,
+        masks: scores,
+        latency,
+    })
+}
+
+fn save(img: &RgbImage, path: &Path) -> Result<()> {
+    img.save(path)
+        .with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// ATE/RPE of `trajectory.txt` when the dataset has ground truth.
+fn trajectory_eval(
+    run_dir: &Path,
+    dataset: &Path,
+    rows: &[FrameRow],
+) -> Result<Option<EvalSummary>> {
+    let gt_path = dataset.join("groundtruth.txt");
+    if !gt_path.is_file() {
+        return Ok(None);
+    }
+    let gt = Trajectory::load_tum(&gt_path)?;
+    let est = Trajectory::load_tum(&run_dir.join("trajectory.txt"));
+    let est = match est {
+        Ok(t) => t,
+        Err(_) if rows.iter().all(|r| !r.is_tracked()) => {
+            anyhow::bail!("no frame was tracked")
+        }
+        Err(e) => return Err(e.into()),
+    };
+    Ok(Some(evaluate(&gt, &est, EvalOptions::default())?))
+}
+
+type FrameIou = (u64, String, f64);
+
+/// Per-person IoU of the masks the run used against the ground truth, per
+/// frame with a person (a frame without masks scores 0 for each person).
+fn mask_scores(
+    run_dir: &Path,
+    rows: &[FrameRow],
+    mask_rows: &[MaskRow],
+    truth: &MaskList,
+) -> (MaskScores, Vec<FrameIou>) {
+    let source_of: std::collections::HashMap<u64, &str> = mask_rows
+        .iter()
+        .map(|m| (m.seq, m.source.as_str()))
+        .collect();
+    let mut ious: Vec<FrameIou> = Vec::new();
+    for r in rows {
+        let Ok(gt) = truth.load_at(r.timestamp) else {
+            continue;
+        };
+        let source = source_of.get(&r.seq).copied().unwrap_or("none");
+        let predicted: GrayImage = if source == "none" {
+            GrayImage::new(gt.width(), gt.height())
+        } else {
+            match image::open(mask_file(run_dir, r.seq)) {
+                Ok(i) => i.into_luma8(),
+                Err(_) => continue,
+            }
+        };
+        if predicted.dimensions() != gt.dimensions() {
+            continue;
+        }
+        for s in scenes::truth::instance_ious(predicted.as_raw(), gt.as_raw(), MIN_PERSON_PX) {
+            ious.push((r.seq, source.to_string(), s.iou));
+        }
+    }
+    let mean = |src: Option<&str>| {
+        let v: Vec<f64> = ious
+            .iter()
+            .filter(|(_, s, _)| src.is_none_or(|want| s == want))
+            .map(|(_, _, v)| *v)
+            .collect();
+        let m = (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
+        (m, v.len())
+    };
+    let (segmenter_iou, segmenter_samples) = mean(Some("segmenter"));
+    let (propagator_iou, propagator_samples) = mean(Some("propagator"));
+    let (all_frames_iou, all_frames_samples) = mean(None);
+    (
+        MaskScores {
+            segmenter_iou,
+            segmenter_samples,
+            propagator_iou,
+            propagator_samples,
+            all_frames_iou,
+            all_frames_samples,
+        },
+        ious,
+    )
+}
+
+/// Six frames in a 3x2 grid at half size, masks tinted by source, ground
+/// truth outlined. Frames with masks (or people) are preferred.
+fn mask_strip(
+    run_dir: &Path,
+    frames: &[FrameEntry],
+    rows: &[FrameRow],
+    mask_rows: &[MaskRow],
+    truth: Option<&MaskList>,
+) -> Result<RgbImage> {
+    let with_masks: Vec<u64> = mask_rows
+        .iter()
+        .filter(|m| m.masked_px > 0)
+        .map(|m| m.seq)
+        .collect();
+    let pool: Vec<u64> = if with_masks.len() >= 6 {
+        with_masks
+    } else {
+        rows.iter().map(|r| r.seq).collect()
+    };
+    anyhow::ensure!(!pool.is_empty(), "no frames");
+    let picks: Vec<u64> = (0..6).map(|i| pool[i * (pool.len() - 1) / 5]).collect();
+    let source_of: std::collections::HashMap<u64, &str> = mask_rows
+        .iter()
+        .map(|m| (m.seq, m.source.as_str()))
+        .collect();
+    let (tw, th) = (320u32, 240u32);
+    let mut out = RgbImage::from_pixel(3 * tw, 2 * th, Rgb([255, 255, 255]));
+    for (k, &seq) in picks.iter().enumerate() {
+        let entry = frames
+            .get(seq as usize)
+            .with_context(|| format!("frame {seq} is not in the dataset"))?;
+        let mut rgb = image::open(&entry.rgb)
+            .with_context(|| format!("cannot read {}", entry.rgb.display()))?
+            .into_rgb8();
+        let (w, h) = rgb.dimensions();
+        if let Some(&src) = source_of.get(&seq) {
+            if let Ok(m) = image::open(mask_file(run_dir, seq)) {
+                let m = m.into_luma8();
+                if m.dimensions() == (w, h) {
+                    let tint = if src == "segmenter" { RED } else { BLUE };
+                    for (p, l) in rgb.pixels_mut().zip(m.pixels()) {
+                        if l[0] != 0 {
+                            for c in 0..3 {
+                                p[c] = ((p[c] as u16 + tint[c] as u16) / 2) as u8;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        if let Some(Ok(gt)) = truth.map(|t| t.load_at(entry.timestamp)) {
+            if gt.dimensions() == (w, h) {
+                for y in 1..h - 1 {
+                    for x in 1..w - 1 {
+                        let l = gt.get_pixel(x, y)[0];
+                        let edge = [(x - 1, y), (x + 1, y), (x, y - 1), (x, y + 1)]
+                            .iter()
+                            .any(|&(a, b)| gt.get_pixel(a, b)[0] != l);
+                        if edge {
+                            rgb.put_pixel(x, y, GREEN);
+                        }
+                    }
+                }
+            }
+        }
+        let mut small = imageops::resize(&rgb, tw, th, imageops::FilterType::Triangle);
+        text(
+            &mut small,
+            5.0,
+            5.0,
+            &seq.to_string(),
+            3,
+            Rgb([255, 255, 0]),
+        );
+        imageops::replace(
+            &mut out,
+            &small,
+            ((k as u32 % 3) * tw) as i64,
+            ((k as u32 / 3) * th) as i64,
+        );
+    }
+    Ok(out)
+}
+
+/// Path of the report of a run folder.
+pub fn report_path(run_dir: &Path) -> PathBuf {
+    run_dir.join(REPORT_FILE)
+}

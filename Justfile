@@ -4,6 +4,7 @@ set shell := ["bash", "-euo", "pipefail", "-c"]
 
 shared := justfile_directory() + "/../shared"
 tum := shared + "/data/tum/rgbd_dataset_freiburg1_rpy_first300"
+people := ".cache/synth/fr1_rpy_people"
 
 # Build every service (release: the pipeline is only meaningful optimised).
 build:
@@ -25,9 +26,14 @@ setup:
     fi
     echo "$want  $lib" | sha256sum --check --quiet || { echo "error: $lib does not match its pinned sha256; delete it and run just setup again" >&2; exit 1; }
 
-# Run the whole pipeline on a TUM RGB-D folder (default: the shared sequence).
-run dataset=tum *args="": build setup
-    ./target/release/dynslam run "{{dataset}}" {{args}}
+# Whole pipeline -> run folder with report.md. No path: the embedded default scene (rendered room, people walking); else a TUM folder.
+run dataset="" *args="": build setup
+    #!/usr/bin/env bash
+    set -euo pipefail
+    if [ -z '{{dataset}}' ]; then
+        exec ./target/release/dynslam run {{args}}
+    fi
+    exec ./target/release/dynslam run '{{dataset}}' {{args}}
 
 # The reference evaluation tool evo (PyPI, pinned) in the repo's ignored .cache, for the parity test.
 evo:
@@ -73,15 +79,28 @@ bench-slam dataset=tum *args="": build
     ./target/release/slam-bench "{{dataset}}" {{args}}
 
 # Mask quality against ground truth on a synthesised sequence (made first if missing): segmenter and propagator IoU.
-eval-masks: build setup
+eval-masks: build setup synth-people
+    ./target/release/dynslam masks-eval {{people}}
+
+# People walking through the shared fr1_rpy sequence (3 people, seed 5), synthesised once into .cache/synth.
+synth-people: build
     #!/usr/bin/env bash
     set -euo pipefail
-    seq=.cache/synth/fr1_rpy_people
-    if [ ! -f "$seq/objects.json" ]; then
-        rm -rf "$seq"
-        ./target/release/dynslam synth "{{tum}}" "$seq" --objects 3 --seed 5
+    if [ ! -f "{{people}}/objects.json" ]; then
+        rm -rf "{{people}}"
+        ./target/release/dynslam synth "{{tum}}" "{{people}}" --objects 3 --seed 5
     fi
-    ./target/release/dynslam masks-eval "$seq"
+
+# Ablation table (no masks, ground-truth masks, segmenter every frame, product, blackout) on a dynamic sequence (default: synth-people).
+eval-dynamic dataset="" *args="": build setup
+    #!/usr/bin/env bash
+    set -euo pipefail
+    seq='{{dataset}}'
+    if [ -z "$seq" ]; then
+        "{{just_executable()}}" synth-people
+        seq="{{people}}"
+    fi
+    ./target/release/dynslam ablate "$seq" {{args}}
 
 # Transport benchmark: iceoryx2 zero-copy vs a Unix-socket copy (writes bench-results/transport.json).
 bench: build

@@ -165,7 +165,7 @@ pub struct RoutingConfig {
 impl Default for RoutingConfig {
     fn default() -> Self {
         Self {
-            max_segment_age: 30,
+            max_segment_age: 10,
             segment_every_frame: false,
             no_masks: false,
         }

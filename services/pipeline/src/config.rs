@@ -249,7 +249,8 @@ pub struct ServiceConfig {
     pub classes: Vec<String>,
     /// Model backends: square network input size in pixels.
     pub input_size: Option<u32>,
-    /// Model backends: ONNX Runtime intra-op threads.
+    /// Model backends: ONNX Runtime intra-op threads; SLAM: feature
+    /// extraction threads (pyramid levels in parallel; default 2).
     pub threads: Option<usize>,
 }
 

@@ -23,8 +23,12 @@ pub struct RgbdTracker {
 impl RgbdTracker {
     pub fn new(config: &PipelineConfig) -> Self {
         let camera = Camera::from_config(&config.camera, config.source.depth_scale as f64);
+        let mut params = SlamParams::default();
+        if let Some(t) = config.services.slam.threads {
+            params.orb.threads = t.max(1);
+        }
         Self {
-            system: System::new(SlamParams::default(), camera),
+            system: System::new(params, camera),
             depth: Vec::new(),
             blackout: config.services.slam.mask_mode == "blackout",
             painted: Vec::new(),

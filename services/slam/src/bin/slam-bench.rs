@@ -3,19 +3,22 @@
 //! and, with ground truth, ATE. `just bench-slam` runs it on the shared
 //! sequence.
 //!
-//! `slam-bench [DATASET] [--masks] [--limit N] [--verbose] [--out trajectory.txt]`
+//! `slam-bench [DATASET] [--masks] [--limit N] [--threads N] [--verbose] [--out trajectory.txt]`
+//! With more than one extraction thread it also measures extraction alone
+//! with 1 and N threads on the same frames and prints the ratio.
 //! `--masks` feeds the ground-truth masks of a `dynslam synth` folder.
 
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use camera_reader::source::{tum_folder, MaskList};
+use camera_reader::source::{tum_folder, FrameEntry, MaskList};
 use clap::Parser;
 use pipeline::config::PipelineConfig;
 use pipeline::progress::Progress;
 use pipeline::stats::percentile;
 use shared_types::TrackState;
 use slam::core::camera::Camera;
+use slam::core::orb::{GrayU8, OrbExtractor, OrbParams};
 use slam::core::system::{SlamParams, System};
 use slam::eval::{evaluate_files, EvalOptions};
 use slam::trajectory::Trajectory;
@@ -37,6 +40,10 @@ struct Args {
     verbose: bool,
     #[arg(long, default_value = "bench-results/slam_trajectory.txt")]
     out: PathBuf,
+    /// Feature-extraction worker threads (default: `services.slam.threads`
+    /// of the config, else 2).
+    #[arg(long)]
+    threads: Option<usize>,
 }
 
 fn main() -> Result<()> {
@@ -55,7 +62,14 @@ fn main() -> Result<()> {
     } else {
         None
     };
-    let mut system = System::new(SlamParams::default(), camera);
+    let threads = args
+        .threads
+        .or(cfg.services.slam.threads)
+        .unwrap_or(SlamParams::default().orb.threads);
+    anyhow::ensure!(threads >= 1, "--threads must be at least 1");
+    let mut params = SlamParams::default();
+    params.orb.threads = threads;
+    let mut system = System::new(params, camera);
     let (mut extract, mut track, mut total) = (Vec::new(), Vec::new(), Vec::new());
     let mut trajectory = Trajectory {
         stamps: Vec::new(),
@@ -133,6 +147,14 @@ fn main() -> Result<()> {
         system.points.len()
     );
     println!("peak memory (VmHWM) {:.1} MiB", peak_rss_mib());
+    if threads > 1 {
+        let (one, many) = extraction_speedup(&frames, threads)?;
+        println!(
+            "extraction alone, first {} frames, alternating: 1 thread p50 {one:.2} ms, {threads} threads p50 {many:.2} ms (x{:.2})",
+            frames.len().min(SPEEDUP_FRAMES),
+            one / many
+        );
+    }
     let gt = args.dataset.join("groundtruth.txt");
     if gt.is_file() {
         let s = evaluate_files(&gt, &args.out, EvalOptions::default())?;
@@ -143,6 +165,36 @@ fn main() -> Result<()> {
     }
     println!("trajectory: {}", args.out.display());
     Ok(())
+}
+
+const SPEEDUP_FRAMES: usize = 60;
+
+/// Median extraction time with one thread and with `threads`, measured on
+/// the same frames in one run, alternating so both see the same machine.
+fn extraction_speedup(frames: &[FrameEntry], threads: usize) -> Result<(f64, f64)> {
+    let make = |t: usize| {
+        OrbExtractor::new(OrbParams {
+            threads: t,
+            ..OrbParams::default()
+        })
+    };
+    let (single, multi) = (make(1), make(threads));
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    for f in frames.iter().take(SPEEDUP_FRAMES) {
+        let rgb = image::open(&f.rgb)
+            .with_context(|| f.rgb.display().to_string())?
+            .to_rgb8();
+        let grey = GrayU8::from_rgb(rgb.as_raw(), rgb.width() as usize, rgb.height() as usize);
+        for (extractor, times) in [(&single, &mut a), (&multi, &mut b)] {
+            let t0 = std::time::Instant::now();
+            let (kps, _, _) = extractor.extract(&grey, &|_, _| true);
+            times.push(t0.elapsed().as_secs_f64() * 1e3);
+            std::hint::black_box(kps);
+        }
+    }
+    a.sort_by(f64::total_cmp);
+    b.sort_by(f64::total_cmp);
+    Ok((percentile(&a, 50.0), percentile(&b, 50.0)))
 }
 
 fn peak_rss_mib() -> f64 {

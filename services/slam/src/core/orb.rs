@@ -41,6 +41,8 @@ pub struct OrbParams {
     pub scale_factor: f32,
     pub fast_threshold: u8,
     pub fast_min_threshold: u8,
+    /// Worker threads for the pyramid levels (1: the caller's thread only).
+    pub threads: usize,
 }
 
 impl Default for OrbParams {
@@ -51,6 +53,7 @@ impl Default for OrbParams {
             scale_factor: 1.2,
             fast_threshold: 20,
             fast_min_threshold: 7,
+            threads: 2,
         }
     }
 }
@@ -105,29 +108,40 @@ impl GrayU8 {
         }
     }
 
-    /// Separable [1 4 6 4 1]/16 smoothing (BRIEF tests are noise-sensitive).
+    /// Separable [1 4 6 4 1]/16 smoothing (BRIEF tests are noise-sensitive),
+    /// borders replicated. The interior runs without index clamping.
     fn smoothed(&self) -> Self {
         let (w, h) = (self.width, self.height);
-        let k = [1u32, 4, 6, 4, 1];
+        let tap = |get: &dyn Fn(isize) -> u32, i: isize| {
+            get(i - 2) + 4 * get(i - 1) + 6 * get(i) + 4 * get(i + 1) + get(i + 2)
+        };
         let mut tmp = vec![0u32; w * h];
         for y in 0..h {
+            let row = &self.data[y * w..(y + 1) * w];
+            let out = &mut tmp[y * w..(y + 1) * w];
+            let clamped = |i: isize| row[i.clamp(0, w as isize - 1) as usize] as u32;
             for x in 0..w {
-                let mut acc = 0;
-                for (i, kv) in k.iter().enumerate() {
-                    let xx = (x as isize + i as isize - 2).clamp(0, w as isize - 1) as usize;
-                    acc += kv * self.data[y * w + xx] as u32;
-                }
-                tmp[y * w + x] = acc;
+                out[x] = if x >= 2 && x + 2 < w {
+                    row[x - 2] as u32
+                        + 4 * row[x - 1] as u32
+                        + 6 * row[x] as u32
+                        + 4 * row[x + 1] as u32
+                        + row[x + 2] as u32
+                } else {
+                    tap(&clamped, x as isize)
+                };
             }
         }
         let mut data = vec![0u8; w * h];
         for y in 0..h {
+            let r = |dy: isize| (y as isize + dy).clamp(0, h as isize - 1) as usize * w;
+            let rows = [r(-2), r(-1), r(0), r(1), r(2)];
             for x in 0..w {
-                let mut acc = 0;
-                for (i, kv) in k.iter().enumerate() {
-                    let yy = (y as isize + i as isize - 2).clamp(0, h as isize - 1) as usize;
-                    acc += kv * tmp[yy * w + x];
-                }
+                let acc = tmp[rows[0] + x]
+                    + 4 * tmp[rows[1] + x]
+                    + 6 * tmp[rows[2] + x]
+                    + 4 * tmp[rows[3] + x]
+                    + tmp[rows[4] + x];
                 data[y * w + x] = ((acc + 128) >> 8) as u8;
             }
         }
@@ -163,20 +177,23 @@ const CIRCLE: [(isize, isize); 16] = [
 /// brighter or all darker, else 0.
 #[inline]
 fn fast_score(img: &GrayU8, x: usize, y: usize, t: i16) -> f32 {
-    let p = img.at(x, y) as i16;
-    let mut v = [0i16; 16];
-    for (i, (dx, dy)) in CIRCLE.iter().enumerate() {
-        v[i] = img.at((x as isize + dx) as usize, (y as isize + dy) as usize) as i16 - p;
-    }
-    // Quick rejection on the compass points (at least 2 of 4 must pass).
-    let bright = [v[0], v[4], v[8], v[12]].iter().filter(|&&d| d > t).count();
-    let dark = [v[0], v[4], v[8], v[12]]
-        .iter()
-        .filter(|&&d| d < -t)
-        .count();
+    let w = img.width as isize;
+    let d = &img.data;
+    let centre = y * img.width + x;
+    let p = d[centre] as i16;
+    let diff = |k: usize| {
+        let (dx, dy) = CIRCLE[k];
+        d[(centre as isize + dy * w + dx) as usize] as i16 - p
+    };
+    // Quick rejection on the compass points (at least 2 of 4 must pass)
+    // before the other 12 pixels are read: most pixels end here.
+    let compass = [diff(0), diff(4), diff(8), diff(12)];
+    let bright = compass.iter().filter(|&&v| v > t).count();
+    let dark = compass.iter().filter(|&&v| v < -t).count();
     if bright < 2 && dark < 2 {
         return 0.0;
     }
+    let v: [i16; 16] = std::array::from_fn(diff);
     for sign in [1i16, -1] {
         let mut run = 0;
         for i in 0..25 {
@@ -199,9 +216,15 @@ const BORDER: usize = 20;
 const CELL: usize = 30;
 const HALF_PATCH: isize = 15;
 
+/// What one pyramid level contributes.
+struct LevelFeatures {
+    kps: Vec<KeyPoint>,
+    descs: Vec<Descriptor>,
+    rejected: usize,
+}
+
 struct Level<'a> {
-    /// Level 0 borrows the caller's image; the others own their resize.
-    img: Cow<'a, GrayU8>,
+    img: &'a GrayU8,
     smooth: GrayU8,
     scale: f32,
 }
@@ -264,15 +287,15 @@ impl OrbExtractor {
     pub fn extract(
         &self,
         img: &GrayU8,
-        keep: &dyn Fn(f32, f32) -> bool,
+        keep: &(dyn Fn(f32, f32) -> bool + Sync),
     ) -> (Vec<KeyPoint>, Vec<Descriptor>, usize) {
         let p = &self.params;
         let f = 1.0 / p.scale_factor;
         let first = p.features as f32 * (1.0 - f) / (1.0 - f.powi(p.levels as i32));
-        let mut kps = Vec::new();
-        let mut descs = Vec::new();
-        let mut rejected = 0;
-        let mut prev: Option<Cow<GrayU8>> = None;
+        // The pyramid: each level resized from the one above (cheap); the
+        // per-level work (smoothing, FAST, orientation, BRIEF) is
+        // independent and runs on `threads` workers, largest level first.
+        let mut pyramid: Vec<Cow<GrayU8>> = Vec::with_capacity(p.levels);
         for level in 0..p.levels {
             let scale = p.scale_factor.powi(level as i32);
             let (w, h) = (
@@ -282,30 +305,66 @@ impl OrbExtractor {
             if w < 2 * BORDER + CELL || h < 2 * BORDER + CELL {
                 break;
             }
-            let lvl_img = match &prev {
+            let lvl = match pyramid.last() {
                 None => Cow::Borrowed(img),
-                Some(pr) => Cow::Owned(pr.resized(w, h)),
+                Some(prev) => Cow::Owned(prev.resized(w, h)),
             };
+            pyramid.push(lvl);
+        }
+        let one_level = |level: usize| -> LevelFeatures {
             let lv = Level {
-                smooth: lvl_img.smoothed(),
-                img: lvl_img,
-                scale,
+                smooth: pyramid[level].smoothed(),
+                img: pyramid[level].as_ref(),
+                scale: p.scale_factor.powi(level as i32),
             };
             let target = (first * f.powi(level as i32)).round() as usize;
-            let (corners, rej) = self.detect(&lv, target, keep);
-            rejected += rej;
+            let (corners, rejected) = self.detect(&lv, target, keep);
+            let mut out = LevelFeatures {
+                kps: Vec::with_capacity(corners.len()),
+                descs: Vec::with_capacity(corners.len()),
+                rejected,
+            };
             for (x, y, score) in corners {
-                let angle = self.orientation(&lv.img, x, y);
-                descs.push(self.describe(&lv.smooth, x, y, angle));
-                kps.push(KeyPoint {
-                    x: x as f32 * scale,
-                    y: y as f32 * scale,
+                let angle = self.orientation(lv.img, x, y);
+                out.descs.push(self.describe(&lv.smooth, x, y, angle));
+                out.kps.push(KeyPoint {
+                    x: x as f32 * lv.scale,
+                    y: y as f32 * lv.scale,
                     level: level as u8,
                     angle,
                     score,
                 });
             }
-            prev = Some(lv.img);
+            out
+        };
+        let results: Vec<LevelFeatures> = if p.threads <= 1 {
+            (0..pyramid.len()).map(one_level).collect()
+        } else {
+            let next = std::sync::atomic::AtomicUsize::new(0);
+            let slots: Vec<std::sync::Mutex<Option<LevelFeatures>>> =
+                (0..pyramid.len()).map(|_| Default::default()).collect();
+            std::thread::scope(|scope| {
+                for _ in 0..p.threads.min(pyramid.len()) {
+                    scope.spawn(|| loop {
+                        let level = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        if level >= pyramid.len() {
+                            break;
+                        }
+                        let r = one_level(level);
+                        *slots[level].lock().expect("no worker panics holding it") = Some(r);
+                    });
+                }
+            });
+            slots
+                .into_iter()
+                .map(|s| s.into_inner().ok().flatten().expect("every level ran"))
+                .collect()
+        };
+        let (mut kps, mut descs, mut rejected) = (Vec::new(), Vec::new(), 0);
+        for r in results {
+            kps.extend(r.kps);
+            descs.extend(r.descs);
+            rejected += r.rejected;
         }
         (kps, descs, rejected)
     }
@@ -317,9 +376,9 @@ impl OrbExtractor {
         &self,
         lv: &Level,
         target: usize,
-        keep: &dyn Fn(f32, f32) -> bool,
+        keep: &(dyn Fn(f32, f32) -> bool + Sync),
     ) -> (Vec<(usize, usize, f32)>, usize) {
-        let img = &lv.img;
+        let img = lv.img;
         let (w, h) = (img.width, img.height);
         let mut cells: Vec<Vec<(usize, usize, f32)>> = Vec::new();
         let mut rejected = 0;

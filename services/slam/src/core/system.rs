@@ -12,15 +12,20 @@
 //! Keyframes are decided as ORB-SLAM2 decides them (tracked points against
 //! the reference keyframe, frames since the last keyframe) and create new
 //! map points from the depth of the keypoints no map point explains.
-//! Not here yet (see the issue notes): the local-mapping thread with
-//! covisibility graph, triangulation between keyframes, local bundle
-//! adjustment and keyframe culling.
+//! After each keyframe, local bundle adjustment refines the newest
+//! keyframes and their points ([`super::local_ba`]), synchronously (results
+//! are deterministic).
+//! Not here yet (see the issue notes): local mapping on its own thread,
+//! covisibility graph, triangulation between keyframes, keyframe culling.
 
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use pipeline::rng::SplitMix64;
 use shared_types::{TrackCounts, TrackState};
 
+use std::collections::HashMap;
+
 use super::camera::{Bounds, Camera};
+use super::local_ba::{bundle_adjust, BaObservation};
 use super::optimize::{optimize_pose, renormalized, Observation};
 use super::orb::{hamming, Descriptor, GrayU8, KeyPoint, OrbExtractor, OrbParams};
 
@@ -38,6 +43,12 @@ pub struct SlamParams {
     pub max_frames_between_keyframes: u32,
     /// Fewer inliers than this: the frame is lost.
     pub min_inliers: usize,
+    /// Keyframes whose poses local bundle adjustment refines (0 or 1: off).
+    pub local_ba_keyframes: usize,
+    /// Keypoints nearer than this (metres) are measured with their depth as
+    /// (u, v, ur); farther ones only by (u, v), since depth noise grows with
+    /// the square of the distance (ORB-SLAM2's ThDepth: 40 baselines).
+    pub close_depth_m: f64,
 }
 
 impl Default for SlamParams {
@@ -48,8 +59,10 @@ impl Default for SlamParams {
             max_depth_m: 6.0,
             mask_dilation_px: 5,
             local_keyframes: 20,
-            max_frames_between_keyframes: 30,
+            max_frames_between_keyframes: 10,
             min_inliers: 25,
+            local_ba_keyframes: 10,
+            close_depth_m: 3.1,
         }
     }
 }
@@ -67,12 +80,25 @@ pub struct MapPoint {
     pub colour: [u8; 3],
 }
 
+/// A map point as one keyframe measured it (for bundle adjustment).
+#[derive(Debug, Clone, Copy)]
+pub struct KeyFrameObservation {
+    pub u: f64,
+    pub v: f64,
+    /// `u - bf / depth` when the keypoint had depth.
+    pub ur: Option<f64>,
+    /// 1 / sigma^2 of the keypoint's pyramid level.
+    pub info: f64,
+}
+
 #[derive(Debug, Clone)]
 pub struct KeyFrame {
     /// Camera from world.
     pub pose_cw: Isometry3<f64>,
     /// Points this keyframe observes (ids into the map).
     pub points: Vec<usize>,
+    /// How it measured each of them (same order as `points`).
+    pub measurements: Vec<KeyFrameObservation>,
 }
 
 /// One frame's features.
@@ -411,7 +437,9 @@ impl System {
                         world: self.points[p].position,
                         u,
                         v,
-                        ur: frame.depth[k].map(|d| u - self.camera.bf / d),
+                        ur: frame.depth[k]
+                            .filter(|&d| d < self.params.close_depth_m)
+                            .map(|d| u - self.camera.bf / d),
                         info: 1.0 / (sigma * sigma),
                     }
                 })
@@ -508,7 +536,7 @@ impl System {
         // tracked against the reference keyframe, or too long since the last.
         let (mut close_tracked, mut close_untracked) = (0, 0);
         for (m, d) in matched.iter().zip(&frame.depth) {
-            if d.is_some_and(|d| d < 3.1) {
+            if d.is_some_and(|d| d < self.params.close_depth_m) {
                 match m {
                     Some(_) => close_tracked += 1,
                     None => close_untracked += 1,
@@ -536,10 +564,24 @@ impl System {
         let id = self.keyframes.len();
         let pose_wc = pose_cw.inverse();
         let mut observed = Vec::new();
+        let mut measurements = Vec::new();
+        let measure = |k: usize| {
+            let (u, v) = frame.un[k];
+            let sigma = self.extractor.scale(frame.kps[k].level) as f64;
+            KeyFrameObservation {
+                u,
+                v,
+                ur: frame.depth[k]
+                    .filter(|&d| d < self.params.close_depth_m)
+                    .map(|d| u - self.camera.bf / d),
+                info: 1.0 / (sigma * sigma),
+            }
+        };
         for (k, m) in matched.iter().enumerate() {
             if let Some(p) = m {
                 self.points[*p].last_keyframe = id;
                 observed.push(*p);
+                measurements.push(measure(k));
             } else if let Some(d) = frame.depth[k] {
                 let (u, v) = frame.un[k];
                 let world = pose_wc * Point3::from(self.camera.unproject(u, v, d));
@@ -552,12 +594,17 @@ impl System {
                     colour: frame.colours[k],
                 });
                 observed.push(self.points.len() - 1);
+                measurements.push(measure(k));
             }
         }
         self.keyframes.push(KeyFrame {
             pose_cw: *pose_cw,
             points: observed,
+            measurements,
         });
+        if self.params.local_ba_keyframes > 1 {
+            self.local_bundle_adjustment();
+        }
         self.frames_since_keyframe = 0;
         self.reference_inliers = inliers.max(1);
         // Recent-point culling: points seen in under a quarter of the frames
@@ -567,6 +614,101 @@ impl System {
                 p.last_keyframe = 0;
                 p.visible = 0;
             }
+        }
+    }
+
+    /// Local bundle adjustment after a keyframe insertion: the newest
+    /// `local_ba_keyframes` keyframes and every point they see, against all
+    /// observations of those points; older keyframes seeing them are held
+    /// fixed (and the first keyframe always is: it defines the world).
+    /// Outlier observations are removed from their keyframe.
+    fn local_bundle_adjustment(&mut self) {
+        let n = self.keyframes.len();
+        let first_local = n.saturating_sub(self.params.local_ba_keyframes);
+        let mut point_slot: HashMap<usize, usize> = HashMap::new();
+        let mut point_ids: Vec<usize> = Vec::new();
+        for kf in &self.keyframes[first_local..] {
+            for &p in &kf.points {
+                if self.points[p].visible > 0 && !point_slot.contains_key(&p) {
+                    point_slot.insert(p, point_ids.len());
+                    point_ids.push(p);
+                }
+            }
+        }
+        // Every keyframe observing a local point takes part.
+        let mut kf_slot: HashMap<usize, usize> = HashMap::new();
+        let mut kf_ids: Vec<usize> = Vec::new();
+        let mut obs: Vec<BaObservation> = Vec::new();
+        let mut obs_at: Vec<(usize, usize)> = Vec::new();
+        let mut seen_by = vec![0u32; point_ids.len()];
+        for (kid, kf) in self.keyframes.iter().enumerate() {
+            for (j, (&p, m)) in kf.points.iter().zip(&kf.measurements).enumerate() {
+                let Some(&slot) = point_slot.get(&p) else {
+                    continue;
+                };
+                let pose = *kf_slot.entry(kid).or_insert_with(|| {
+                    kf_ids.push(kid);
+                    kf_ids.len() - 1
+                });
+                seen_by[slot] += 1;
+                obs.push(BaObservation {
+                    pose,
+                    point: slot,
+                    u: m.u,
+                    v: m.v,
+                    ur: m.ur,
+                    info: m.info,
+                });
+                obs_at.push((kid, j));
+            }
+        }
+        // A point seen once constrains no pose: leave it out.
+        let keep: Vec<bool> = obs.iter().map(|o| seen_by[o.point] >= 2).collect();
+        let (obs, obs_at): (Vec<_>, Vec<_>) = obs
+            .into_iter()
+            .zip(obs_at)
+            .zip(&keep)
+            .filter(|(_, &k)| k)
+            .map(|(pair, _)| pair)
+            .unzip();
+        if obs.is_empty() {
+            return;
+        }
+        let fixed: Vec<bool> = kf_ids.iter().map(|&k| k < first_local || k == 0).collect();
+        if fixed.iter().all(|&f| !f) || fixed.iter().all(|&f| f) {
+            return;
+        }
+        let mut poses: Vec<Isometry3<f64>> =
+            kf_ids.iter().map(|&k| self.keyframes[k].pose_cw).collect();
+        let mut positions: Vec<Vector3<f64>> =
+            point_ids.iter().map(|&p| self.points[p].position).collect();
+        let inlier = bundle_adjust(&self.camera, &mut poses, &fixed, &mut positions, &obs);
+        for (i, &k) in kf_ids.iter().enumerate() {
+            if !fixed[i] {
+                self.keyframes[k].pose_cw = poses[i];
+            }
+        }
+        for (slot, &p) in point_ids.iter().enumerate() {
+            if seen_by[slot] >= 2 {
+                self.points[p].position = positions[slot];
+            }
+        }
+        // Drop outlier observations (highest index first per keyframe).
+        let mut outliers: Vec<(usize, usize)> = obs_at
+            .iter()
+            .zip(&inlier)
+            .filter(|(_, &ok)| !ok)
+            .map(|(&at, _)| at)
+            .collect();
+        outliers.sort_unstable_by(|a, b| b.cmp(a));
+        for (kid, j) in outliers {
+            self.keyframes[kid].points.swap_remove(j);
+            self.keyframes[kid].measurements.swap_remove(j);
+        }
+        // The newest keyframe is the current frame: tracking continues from
+        // its adjusted pose.
+        if let Some(kf) = self.keyframes.last() {
+            self.last_pose = Some(kf.pose_cw);
         }
     }
 

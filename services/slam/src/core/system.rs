@@ -641,6 +641,7 @@ impl System {
         let mut obs: Vec<BaObservation> = Vec::new();
         let mut obs_at: Vec<(usize, usize)> = Vec::new();
         let mut seen_by = vec![0u32; point_ids.len()];
+        let mut with_depth = vec![false; point_ids.len()];
         for (kid, kf) in self.keyframes.iter().enumerate() {
             for (j, (&p, m)) in kf.points.iter().zip(&kf.measurements).enumerate() {
                 let Some(&slot) = point_slot.get(&p) else {
@@ -651,6 +652,7 @@ impl System {
                     kf_ids.len() - 1
                 });
                 seen_by[slot] += 1;
+                with_depth[slot] |= m.ur.is_some();
                 obs.push(BaObservation {
                     pose,
                     point: slot,
@@ -662,8 +664,15 @@ impl System {
                 obs_at.push((kid, j));
             }
         }
-        // A point seen once constrains no pose: leave it out.
-        let keep: Vec<bool> = obs.iter().map(|o| seen_by[o.point] >= 2).collect();
+        // A point seen once constrains no pose, and one never measured
+        // with (close) depth has only parallax to fix its distance, which
+        // between neighbouring keyframes is too little: leave both out.
+        let adjusted: Vec<bool> = seen_by
+            .iter()
+            .zip(&with_depth)
+            .map(|(&n, &d)| n >= 2 && d)
+            .collect();
+        let keep: Vec<bool> = obs.iter().map(|o| adjusted[o.point]).collect();
         let (obs, obs_at): (Vec<_>, Vec<_>) = obs
             .into_iter()
             .zip(obs_at)
@@ -689,7 +698,7 @@ impl System {
             }
         }
         for (slot, &p) in point_ids.iter().enumerate() {
-            if seen_by[slot] >= 2 {
+            if adjusted[slot] {
                 self.points[p].position = positions[slot];
             }
         }

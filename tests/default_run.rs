@@ -105,9 +105,17 @@ fn default_run_renders_the_scene_runs_every_service_and_writes_the_report() {
     ] {
         assert_eq!(png_size(&run_dir.join("plots").join(png)), size, "{png}");
     }
-    // One latency histogram per stage that ran (end to end, track,
-    // segmenter, propagator, decode).
-    assert_eq!(png_size(&run_dir.join("plots/latency.png")), (900, 5 * 160));
+    // One latency histogram per stage that ran (end to end, track, SLAM's
+    // feature extraction, segmenter, propagator, decode).
+    assert_eq!(png_size(&run_dir.join("plots/latency.png")), (900, 6 * 160));
+    // SLAM's own steps are in frames.csv and the latency summary.
+    assert!(rows
+        .iter()
+        .all(|r| r["slam_extract_us"].parse::<u64>().unwrap() > 1000));
+    assert!(
+        rows.iter().filter(|r| r["slam_mapping_us"] != "0").count() >= 5,
+        "local mapping ran on keyframes"
+    );
 
     // Every frame's masks are on file; the map has coloured points.
     let masks_csv = std::fs::read_to_string(run_dir.join("masks.csv")).unwrap();

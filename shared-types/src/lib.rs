@@ -318,6 +318,11 @@ pub struct TrackCounts {
     pub inliers: u32,
     pub map_points: u32,
     pub keyframes: u32,
+    /// Time of SLAM's steps for this frame (microseconds): feature
+    /// extraction, and local mapping (bundle adjustment after a keyframe);
+    /// the rest of the tracking span is matching and pose optimisation.
+    pub extract_us: u32,
+    pub mapping_us: u32,
 }
 
 /// SLAM's result for one frame, and its wish for the next one.

@@ -11,7 +11,7 @@ use crate::outputs::FrameRow;
 
 /// The stages of a frame's path, in path order, then the two mask workers'
 /// own working time (segmenter on keyframes, propagator otherwise).
-pub const STAGES: [&str; 10] = [
+pub const STAGES: [&str; 12] = [
     "decode",
     "capture_to_route",
     "route_to_masks",
@@ -22,6 +22,8 @@ pub const STAGES: [&str; 10] = [
     "end_to_end",
     "segmenter",
     "propagator",
+    "slam_extract",
+    "slam_mapping",
 ];
 
 fn span(from: u64, to: u64) -> Option<f64> {
@@ -29,7 +31,7 @@ fn span(from: u64, to: u64) -> Option<f64> {
 }
 
 /// Milliseconds of each stage of one row (`None` where a stage did not happen).
-pub fn stage_ms(r: &FrameRow) -> [Option<f64>; 10] {
+pub fn stage_ms(r: &FrameRow) -> [Option<f64>; STAGES.len()] {
     let s = &r.stamps;
     let masks_end = if s.masks_done_ns > 0 {
         s.masks_done_ns
@@ -59,6 +61,8 @@ pub fn stage_ms(r: &FrameRow) -> [Option<f64>; 10] {
         } else {
             None
         },
+        (r.extract_us > 0).then(|| r.extract_us as f64 / 1e3),
+        (r.mapping_us > 0).then(|| r.mapping_us as f64 / 1e3),
     ]
 }
 
@@ -73,7 +77,7 @@ pub struct StageSummary {
 }
 
 pub fn summarize(rows: &[FrameRow]) -> Vec<StageSummary> {
-    let per_row: Vec<[Option<f64>; 10]> = rows.iter().map(stage_ms).collect();
+    let per_row: Vec<[Option<f64>; STAGES.len()]> = rows.iter().map(stage_ms).collect();
     STAGES
         .iter()
         .enumerate()

@@ -19,7 +19,7 @@ pub const FRAMES_CSV: &str = "frames.csv";
 
 const HEADER: &str = "seq,timestamp,state,route,mask_source,keyframe,next_keyframe,\
 tx,ty,tz,qx,qy,qz,qw,features,features_masked,inliers,map_points,keyframes,\
-capture_ns,published_ns,routed_ns,masks_start_ns,masks_done_ns,slam_received_ns,\
+slam_extract_us,slam_mapping_us,capture_ns,published_ns,routed_ns,masks_start_ns,masks_done_ns,slam_received_ns,\
 track_start_ns,track_done_ns,track_received_ns,note";
 
 /// The fate of one frame.
@@ -42,6 +42,9 @@ pub struct FrameRow {
     pub inliers: u32,
     pub map_points: u32,
     pub keyframes: u32,
+    /// SLAM's feature extraction and local mapping time (microseconds).
+    pub extract_us: u32,
+    pub mapping_us: u32,
     pub stamps: StageStamps,
     /// When the supervisor received the Track (end of the frame's path).
     pub track_received_ns: u64,
@@ -65,7 +68,7 @@ impl FrameRow {
             })
             .collect();
         format!(
-            "{},{:.6},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{:.6},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             self.seq,
             self.timestamp,
             self.state,
@@ -85,6 +88,8 @@ impl FrameRow {
             self.inliers,
             self.map_points,
             self.keyframes,
+            self.extract_us,
+            self.mapping_us,
             s.capture_ns,
             s.published_ns,
             s.routed_ns,
@@ -99,9 +104,9 @@ impl FrameRow {
     }
 
     pub fn from_csv(line: &str) -> Result<Self> {
-        let f: Vec<&str> = line.splitn(29, ',').collect();
-        if f.len() != 29 {
-            bail!("expected 29 fields, found {}", f.len());
+        let f: Vec<&str> = line.splitn(31, ',').collect();
+        if f.len() != 31 {
+            bail!("expected 31 fields, found {}", f.len());
         }
         let u = |i: usize| -> Result<u64> {
             f[i].parse()
@@ -129,18 +134,20 @@ impl FrameRow {
             inliers: u(16)? as u32,
             map_points: u(17)? as u32,
             keyframes: u(18)? as u32,
+            extract_us: u(19)? as u32,
+            mapping_us: u(20)? as u32,
             stamps: StageStamps {
-                capture_ns: u(19)?,
-                published_ns: u(20)?,
-                routed_ns: u(21)?,
-                masks_start_ns: u(22)?,
-                masks_done_ns: u(23)?,
-                slam_received_ns: u(24)?,
-                track_start_ns: u(25)?,
-                track_done_ns: u(26)?,
+                capture_ns: u(21)?,
+                published_ns: u(22)?,
+                routed_ns: u(23)?,
+                masks_start_ns: u(24)?,
+                masks_done_ns: u(25)?,
+                slam_received_ns: u(26)?,
+                track_start_ns: u(27)?,
+                track_done_ns: u(28)?,
             },
-            track_received_ns: u(27)?,
-            note: f[28].to_string(),
+            track_received_ns: u(29)?,
+            note: f[30].to_string(),
         })
     }
 

@@ -153,8 +153,15 @@ pub fn write(run_dir: &Path, config: &PipelineConfig, rows: &[FrameRow]) -> Resu
     };
 
     // Latency histograms of the stages that ran.
-    let per_row: Vec<[Option<f64>; 10]> = rows.iter().map(latency::stage_ms).collect();
-    let shown = ["end_to_end", "track", "segmenter", "propagator", "decode"];
+    let per_row: Vec<[Option<f64>; STAGES.len()]> = rows.iter().map(latency::stage_ms).collect();
+    let shown = [
+        "end_to_end",
+        "track",
+        "slam_extract",
+        "segmenter",
+        "propagator",
+        "decode",
+    ];
     let mut panels = Vec::new();
     let mut panel_names = Vec::new();
     for name in shown {

@@ -286,6 +286,8 @@ impl Supervisor {
             inliers: t.counts.inliers,
             map_points: t.counts.map_points,
             keyframes: t.counts.keyframes,
+            extract_us: t.counts.extract_us,
+            mapping_us: t.counts.mapping_us,
             stamps: t.stamps,
             track_received_ns: received,
             note: pending.map(|p| p.note).unwrap_or_default(),

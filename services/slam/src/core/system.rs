@@ -193,6 +193,8 @@ pub struct System {
     lost: bool,
     /// Undistorted image extent, computed once per frame size.
     bounds: Option<((usize, usize), Bounds)>,
+    /// Local mapping time of the current frame (0 without a keyframe).
+    mapping_ms: f64,
 }
 
 fn to_ms(t: std::time::Instant) -> f64 {
@@ -213,6 +215,7 @@ impl System {
             reference_inliers: 0,
             lost: false,
             bounds: None,
+            mapping_ms: 0.0,
         }
     }
 
@@ -230,6 +233,7 @@ impl System {
         height: usize,
     ) -> FrameResult {
         let t0 = std::time::Instant::now();
+        self.mapping_ms = 0.0;
         let pixels = width * height;
         if width < 64
             || height < 64
@@ -294,6 +298,7 @@ impl System {
         let mut counts = TrackCounts {
             features: frame.kps.len() as u32,
             features_masked: masked as u32,
+            extract_us: (extract_ms * 1e3) as u32,
             ..Default::default()
         };
         let initialising = self.keyframes.is_empty();
@@ -338,6 +343,7 @@ impl System {
         counts.inliers = inliers as u32;
         counts.map_points = self.points.len() as u32;
         counts.keyframes = self.keyframes.len() as u32;
+        counts.mapping_us = (self.mapping_ms * 1e3) as u32;
         let next_needs_keyframe = !keyframe_inserted
             && (self.lost
                 || self.keyframe_due()
@@ -603,7 +609,9 @@ impl System {
             measurements,
         });
         if self.params.local_ba_keyframes > 1 {
+            let t = std::time::Instant::now();
             self.local_bundle_adjustment();
+            self.mapping_ms = to_ms(t);
         }
         self.frames_since_keyframe = 0;
         self.reference_inliers = inliers.max(1);

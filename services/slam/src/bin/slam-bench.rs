@@ -44,6 +44,10 @@ struct Args {
     /// of the config, else 2).
     #[arg(long)]
     threads: Option<usize>,
+    /// Local bundle adjustment over this many keyframes after each keyframe
+    /// (default: the library's, off).
+    #[arg(long)]
+    local_ba: Option<usize>,
 }
 
 fn main() -> Result<()> {
@@ -69,6 +73,9 @@ fn main() -> Result<()> {
     anyhow::ensure!(threads >= 1, "--threads must be at least 1");
     let mut params = SlamParams::default();
     params.orb.threads = threads;
+    if let Some(n) = args.local_ba {
+        params.local_ba_keyframes = n;
+    }
     let mut system = System::new(params, camera);
     let (mut extract, mut track, mut total) = (Vec::new(), Vec::new(), Vec::new());
     let mut trajectory = Trajectory {

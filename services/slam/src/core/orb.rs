@@ -216,6 +216,15 @@ const BORDER: usize = 20;
 const CELL: usize = 30;
 const HALF_PATCH: isize = 15;
 
+/// A pixel of a pyramid level in level-0 coordinates. The levels are
+/// resized with pixel centres aligned (`resized`), so pixel x of a level
+/// with scale s covers level-0 x' = (x + 0.5) s - 0.5, not x s (which would
+/// shift coarse-level keypoints by up to 1.3 px at level 7).
+#[inline]
+fn to_level0(x: usize, scale: f32) -> f32 {
+    (x as f32 + 0.5) * scale - 0.5
+}
+
 /// What one pyramid level contributes.
 struct LevelFeatures {
     kps: Vec<KeyPoint>,
@@ -328,8 +337,8 @@ impl OrbExtractor {
                 let angle = self.orientation(lv.img, x, y);
                 out.descs.push(self.describe(&lv.smooth, x, y, angle));
                 out.kps.push(KeyPoint {
-                    x: x as f32 * lv.scale,
-                    y: y as f32 * lv.scale,
+                    x: to_level0(x, lv.scale),
+                    y: to_level0(y, lv.scale),
                     level: level as u8,
                     angle,
                     score,
@@ -428,7 +437,7 @@ impl OrbExtractor {
                         if !best {
                             continue;
                         }
-                        if !keep(x as f32 * lv.scale, y as f32 * lv.scale) {
+                        if !keep(to_level0(x, lv.scale), to_level0(y, lv.scale)) {
                             rejected += 1;
                             continue;
                         }

@@ -13,17 +13,14 @@
 //! the SLAM core sees the same camera it is configured for.
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Mutex;
 
 use image::{ImageBuffer, Luma, Rgb, RgbImage};
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
-use pipeline::progress::Progress;
 use slam::core::camera::Camera;
 use slam::trajectory::Trajectory;
 
 use crate::composite::Pinhole;
-use crate::synth::{synthesize, SynthError, SynthSummary};
+use crate::synth::{for_each_frame, synthesize, SynthError, SynthSummary};
 use crate::walkers::WalkOptions;
 
 /// What to render.
@@ -162,41 +159,17 @@ pub fn render_room(
         .map(|k| t0 + k as f64 / options.fps)
         .collect();
 
-    let next = AtomicU64::new(0);
-    let failure: Mutex<Option<SynthError>> = Mutex::new(None);
-    let progress = Mutex::new(Progress::new("room", options.frames as u64));
-    let done = AtomicU64::new(0);
-    let threads = std::thread::available_parallelism()
-        .map_or(2, |n| n.get())
-        .min(8);
-    std::thread::scope(|scope| {
-        for _ in 0..threads {
-            scope.spawn(|| loop {
-                let k = next.fetch_add(1, Ordering::Relaxed) as usize;
-                if k >= options.frames || failure.lock().unwrap().is_some() {
-                    break;
-                }
-                let pose = camera_pose(stamps[k] - t0, duration);
-                let (rgb, depth) = render_frame(&pose, &rays, w, h, camera);
-                let name = format!("{:.6}.png", stamps[k]);
-                let saved = rgb
-                    .save(output.join("rgb").join(&name))
-                    .and_then(|()| depth.save(output.join("depth").join(&name)));
-                if let Err(e) = saved {
-                    failure.lock().unwrap().get_or_insert(SynthError::Io {
-                        path: output.join("rgb").join(&name),
-                        message: e.to_string(),
-                    });
-                }
-                let n = done.fetch_add(1, Ordering::Relaxed) + 1;
-                progress.lock().unwrap().set(n);
-            });
-        }
-    });
-    progress.lock().unwrap().finish();
-    if let Some(e) = failure.into_inner().unwrap() {
-        return Err(e);
-    }
+    for_each_frame("room", options.frames, |k| {
+        let pose = camera_pose(stamps[k] - t0, duration);
+        let (rgb, depth) = render_frame(&pose, &rays, w, h, camera);
+        let name = format!("{:.6}.png", stamps[k]);
+        rgb.save(output.join("rgb").join(&name))
+            .and_then(|()| depth.save(output.join("depth").join(&name)))
+            .map_err(|e| SynthError::Io {
+                path: output.join("rgb").join(&name),
+                message: e.to_string(),
+            })
+    })?;
 
     let header = "# dynslam room: rendered by dynslam (scenes::room), exact depth and poses\n# timestamp filename\n";
     let mut rgb_txt = String::from(header);

@@ -144,53 +144,20 @@ pub fn synthesize(
     let walkers = walkers(options, half_fov_tan, &aspects);
     let t0 = frames[0].timestamp;
 
-    let records: Mutex<Vec<Option<FrameRecord>>> = Mutex::new(vec![None; frames.len()]);
-    let next = AtomicU64::new(0);
-    let failure: Mutex<Option<SynthError>> = Mutex::new(None);
-    let progress = Mutex::new(Progress::new("synth", frames.len() as u64));
-    let done = AtomicU64::new(0);
-    let threads = std::thread::available_parallelism()
-        .map_or(2, |n| n.get())
-        .min(8);
-    std::thread::scope(|scope| {
-        for _ in 0..threads {
-            scope.spawn(|| loop {
-                let k = next.fetch_add(1, Ordering::Relaxed) as usize;
-                if k >= frames.len() || failure.lock().unwrap().is_some() {
-                    break;
-                }
-                let job = FrameJob {
-                    frame: &frames[k],
-                    pose: &poses[k],
-                    t: frames[k].timestamp - t0,
-                    stage: &stage,
-                    walkers: &walkers,
-                    sprites: &sprites,
-                    camera,
-                    depth_scale,
-                    height_m: options.height_m,
-                };
-                match job.render(output) {
-                    Ok(record) => records.lock().unwrap()[k] = Some(record),
-                    Err(e) => {
-                        failure.lock().unwrap().get_or_insert(e);
-                    }
-                }
-                let n = done.fetch_add(1, Ordering::Relaxed) + 1;
-                progress.lock().unwrap().set(n);
-            });
+    let frames_out: Vec<FrameRecord> = for_each_frame("synth", frames.len(), |k| {
+        FrameJob {
+            frame: &frames[k],
+            pose: &poses[k],
+            t: frames[k].timestamp - t0,
+            stage: &stage,
+            walkers: &walkers,
+            sprites: &sprites,
+            camera,
+            depth_scale,
+            height_m: options.height_m,
         }
-    });
-    progress.lock().unwrap().finish();
-    if let Some(e) = failure.into_inner().unwrap() {
-        return Err(e);
-    }
-    let frames_out: Vec<FrameRecord> = records
-        .into_inner()
-        .unwrap()
-        .into_iter()
-        .flatten()
-        .collect();
+        .render(output)
+    })?;
 
     write_lists(output, &frames_out)?;
     let coverages: Vec<f64> = frames_out
@@ -221,6 +188,52 @@ pub fn synthesize(
         mean_coverage: coverages.iter().sum::<f64>() / coverages.len().max(1) as f64,
         max_coverage: coverages.iter().cloned().fold(0.0, f64::max),
     })
+}
+
+/// Runs `job(k)` for every frame index on all cores (at most 8 threads)
+/// with a progress line; results in frame order, or the first error (the
+/// remaining frames are then skipped).
+pub fn for_each_frame<T: Send>(
+    label: &str,
+    count: usize,
+    job: impl Fn(usize) -> Result<T, SynthError> + Sync,
+) -> Result<Vec<T>, SynthError> {
+    let results: Mutex<Vec<Option<T>>> = Mutex::new((0..count).map(|_| None).collect());
+    let next = AtomicU64::new(0);
+    let failure: Mutex<Option<SynthError>> = Mutex::new(None);
+    let progress = Mutex::new(Progress::new(label, count as u64));
+    let done = AtomicU64::new(0);
+    let threads = std::thread::available_parallelism()
+        .map_or(2, |n| n.get())
+        .min(8);
+    std::thread::scope(|scope| {
+        for _ in 0..threads {
+            scope.spawn(|| loop {
+                let k = next.fetch_add(1, Ordering::Relaxed) as usize;
+                if k >= count || failure.lock().unwrap().is_some() {
+                    break;
+                }
+                match job(k) {
+                    Ok(r) => results.lock().unwrap()[k] = Some(r),
+                    Err(e) => {
+                        failure.lock().unwrap().get_or_insert(e);
+                    }
+                }
+                let n = done.fetch_add(1, Ordering::Relaxed) + 1;
+                progress.lock().unwrap().set(n);
+            });
+        }
+    });
+    progress.lock().unwrap().finish();
+    if let Some(e) = failure.into_inner().unwrap() {
+        return Err(e);
+    }
+    Ok(results
+        .into_inner()
+        .unwrap()
+        .into_iter()
+        .flatten()
+        .collect())
 }
 
 struct FrameJob<'a> {

@@ -11,14 +11,16 @@
 //! and a few more iterations without them.
 
 use nalgebra::{
-    DMatrix, DVector, Isometry3, Matrix3, Matrix3x6, Point3, Translation3, UnitQuaternion, Vector3,
-    Vector6,
+    DMatrix, DVector, Isometry3, Matrix3, Matrix3x6, Translation3, UnitQuaternion, Vector3, Vector6,
 };
 
 use std::ops::{AddAssign, SubAssign};
 
 use super::camera::Camera;
-use super::optimize::renormalized;
+use super::optimize::{
+    chi2_error, chi2_threshold, huber_cost, pose_row, projection_rows, renormalized,
+    stereo_residual,
+};
 
 /// One measurement of point `point` in keyframe `pose` (indices into the
 /// problem's arrays).
@@ -34,46 +36,21 @@ pub struct BaObservation {
     pub info: f64,
 }
 
-const CHI2_MONO: f64 = 5.991;
-const CHI2_STEREO: f64 = 7.815;
-
 fn threshold(o: &BaObservation) -> f64 {
-    if o.ur.is_some() {
-        CHI2_STEREO
-    } else {
-        CHI2_MONO
-    }
+    chi2_threshold(o.ur.is_some())
 }
 
-/// Residual (measured - predicted) and the point in the camera frame.
 fn residual(
     cam: &Camera,
     pose: &Isometry3<f64>,
     point: &Vector3<f64>,
     o: &BaObservation,
 ) -> Option<(Vector3<f64>, Vector3<f64>)> {
-    let pc = pose * Point3::from(*point);
-    if pc.z <= 1e-3 {
-        return None;
-    }
-    let (u, v) = cam.project(&pc.coords);
-    let ur = u - cam.bf / pc.z;
-    Some((
-        Vector3::new(o.u - u, o.v - v, o.ur.map_or(0.0, |m| m - ur)),
-        pc.coords,
-    ))
+    stereo_residual(cam, pose, point, (o.u, o.v, o.ur))
 }
 
 fn chi2(r: &Vector3<f64>, o: &BaObservation) -> f64 {
-    (r.x * r.x + r.y * r.y + if o.ur.is_some() { r.z * r.z } else { 0.0 }) * o.info
-}
-
-fn robust_cost(e2: f64, th: f64) -> f64 {
-    if e2 > th {
-        2.0 * (th * e2).sqrt() - th
-    } else {
-        e2
-    }
+    chi2_error(r, o.ur.is_some(), o.info)
 }
 
 /// Adjusts `poses` (camera from world; those with `fixed[i]` stay) and
@@ -130,7 +107,7 @@ fn optimise(
                     Some((r, _)) => {
                         let e2 = chi2(&r, o);
                         if robust {
-                            robust_cost(e2, threshold(o))
+                            huber_cost(e2, threshold(o))
                         } else {
                             e2
                         }
@@ -163,34 +140,19 @@ fn optimise(
             } else {
                 1.0
             } * o.info;
-            let (x, y, z) = (p.x, p.y, p.z);
-            let iz = 1.0 / z;
-            let iz2 = iz * iz;
-            let rows = [
-                ([cam.fx * iz, 0.0, -cam.fx * x * iz2], r.x),
-                ([0.0, cam.fy * iz, -cam.fy * y * iz2], r.y),
-                ([cam.fx * iz, 0.0, (-cam.fx * x + cam.bf) * iz2], r.z),
-            ];
+            let rows = projection_rows(cam, &p);
+            let residuals = [r.x, r.y, r.z];
             let n = if o.ur.is_some() { 3 } else { 2 };
             let rot = pose.rotation.to_rotation_matrix();
             let s = slot[o.pose];
             let mut pm = Matrix3x6::<f64>::zeros();
-            for (d, e) in rows.iter().take(n) {
-                let dcam = Vector3::new(d[0], d[1], d[2]);
+            for (dcam, e) in rows.iter().zip(&residuals).take(n) {
                 // d(pred)/d(point in world) = d(pred)/d(camera point) * R.
                 let jm = rot.matrix().transpose() * dcam;
                 h_mm[o.point] += w * jm * jm.transpose();
                 g_m[o.point] += w * jm * *e;
                 if s != usize::MAX {
-                    // Left perturbation [omega, upsilon] of camera-from-world.
-                    let jp = Vector6::new(
-                        d[1] * -z + d[2] * y,
-                        d[0] * z + d[2] * -x,
-                        d[0] * -y + d[1] * x,
-                        d[0],
-                        d[1],
-                        d[2],
-                    );
+                    let jp = pose_row(dcam, &p);
                     h_pp[s] += w * jp * jp.transpose();
                     g_p[s] += w * jp * *e;
                     pm += w * jm * jp.transpose();
@@ -306,6 +268,7 @@ fn optimise(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::Point3;
     use pipeline::rng::SplitMix64;
 
     fn camera() -> Camera {

@@ -22,23 +22,74 @@ pub struct Observation {
 const CHI2_MONO: f64 = 5.991;
 const CHI2_STEREO: f64 = 7.815;
 
-fn residual(
+/// Residual (measured - predicted) of a measurement (u, v, ur) of `world`
+/// seen from `pose` (camera from world), and the point in the camera frame;
+/// None behind the camera. Shared with bundle adjustment.
+pub(crate) fn stereo_residual(
     cam: &Camera,
     pose: &Isometry3<f64>,
-    o: &Observation,
+    world: &Vector3<f64>,
+    (mu, mv, mur): (f64, f64, Option<f64>),
 ) -> Option<(Vector3<f64>, Vector3<f64>)> {
-    let pc = pose * nalgebra::Point3::from(o.world);
+    let pc = pose * nalgebra::Point3::from(*world);
     if pc.z <= 1e-3 {
         return None;
     }
     let (u, v) = cam.project(&pc.coords);
     let ur = u - cam.bf / pc.z;
-    let r = Vector3::new(o.u - u, o.v - v, o.ur.map_or(0.0, |m| m - ur));
+    let r = Vector3::new(mu - u, mv - v, mur.map_or(0.0, |m| m - ur));
     Some((r, pc.coords))
 }
 
+/// Information-weighted squared error; `ur` counts only when measured.
+pub(crate) fn chi2_error(r: &Vector3<f64>, has_ur: bool, info: f64) -> f64 {
+    (r.x * r.x + r.y * r.y + if has_ur { r.z * r.z } else { 0.0 }) * info
+}
+
+/// The chi-square outlier threshold at 95 % (2 or 3 degrees of freedom).
+pub(crate) fn chi2_threshold(has_ur: bool) -> f64 {
+    if has_ur {
+        CHI2_STEREO
+    } else {
+        CHI2_MONO
+    }
+}
+
+/// Rows of d(u, v, ur) / d(point in the camera frame) at `p`.
+pub(crate) fn projection_rows(cam: &Camera, p: &Vector3<f64>) -> [Vector3<f64>; 3] {
+    let (x, y, z) = (p.x, p.y, p.z);
+    let iz = 1.0 / z;
+    let iz2 = iz * iz;
+    [
+        Vector3::new(cam.fx * iz, 0.0, -cam.fx * x * iz2),
+        Vector3::new(0.0, cam.fy * iz, -cam.fy * y * iz2),
+        Vector3::new(cam.fx * iz, 0.0, (-cam.fx * x + cam.bf) * iz2),
+    ]
+}
+
+/// One row of the Jacobian with respect to a left perturbation
+/// [omega, upsilon] of camera-from-world: d(point)/d = [-[p]x, I].
+pub(crate) fn pose_row(d: &Vector3<f64>, p: &Vector3<f64>) -> Vector6<f64> {
+    Vector6::new(
+        d[1] * -p.z + d[2] * p.y,
+        d[0] * p.z + d[2] * -p.x,
+        d[0] * -p.y + d[1] * p.x,
+        d[0],
+        d[1],
+        d[2],
+    )
+}
+
+fn residual(
+    cam: &Camera,
+    pose: &Isometry3<f64>,
+    o: &Observation,
+) -> Option<(Vector3<f64>, Vector3<f64>)> {
+    stereo_residual(cam, pose, &o.world, (o.u, o.v, o.ur))
+}
+
 fn chi2(r: &Vector3<f64>, o: &Observation) -> f64 {
-    (r.x * r.x + r.y * r.y + if o.ur.is_some() { r.z * r.z } else { 0.0 }) * o.info
+    chi2_error(r, o.ur.is_some(), o.info)
 }
 
 /// Optimises `pose` (camera from world); returns the pose and the inlier
@@ -60,11 +111,7 @@ pub fn optimize_pose(
             round < 2,
         );
         for (i, o) in obs.iter().enumerate() {
-            let th = if o.ur.is_some() {
-                CHI2_STEREO
-            } else {
-                CHI2_MONO
-            };
+            let th = chi2_threshold(o.ur.is_some());
             inlier[i] = residual(cam, &pose, o).is_some_and(|(r, _)| chi2(&r, o) <= th);
         }
         if inlier.iter().filter(|&&b| b).count() < 3 {
@@ -100,37 +147,19 @@ fn refine(
                 continue;
             };
             let e2 = chi2(&r, o);
-            let th = if o.ur.is_some() {
-                CHI2_STEREO
-            } else {
-                CHI2_MONO
-            };
+            let th = chi2_threshold(o.ur.is_some());
             // Huber weight on the squared error.
             let w = if robust && e2 > th {
                 (th / e2).sqrt()
             } else {
                 1.0
             } * o.info;
-            let (x, y, z) = (p.x, p.y, p.z);
-            let iz = 1.0 / z;
-            let iz2 = iz * iz;
-            // d(u, v, ur) / d(point in camera frame).
-            let du = [cam.fx * iz, 0.0, -cam.fx * x * iz2];
-            let dv = [0.0, cam.fy * iz, -cam.fy * y * iz2];
-            let dur = [cam.fx * iz, 0.0, (-cam.fx * x + cam.bf) * iz2];
-            // d(point) / d(left perturbation [omega, upsilon]) = [-[p]x, I].
-            let dp = |d: [f64; 3]| -> Vector6<f64> {
-                Vector6::new(
-                    d[1] * -z + d[2] * y,
-                    d[0] * z + d[2] * -x,
-                    d[0] * -y + d[1] * x,
-                    d[0],
-                    d[1],
-                    d[2],
-                )
-            };
-            let rows = [(dp(du), r.x), (dp(dv), r.y)];
-            for (j, e) in rows.iter().chain(o.ur.map(|_| (dp(dur), r.z)).iter()) {
+            let [du, dv, dur] = projection_rows(cam, &p);
+            let rows = [(pose_row(&du, &p), r.x), (pose_row(&dv, &p), r.y)];
+            for (j, e) in rows
+                .iter()
+                .chain(o.ur.map(|_| (pose_row(&dur, &p), r.z)).iter())
+            {
                 // Residual is measured - predicted: the Jacobian of the residual is -j.
                 h += w * j * j.transpose();
                 g += w * j * *e;
@@ -182,14 +211,18 @@ pub fn renormalized(pose: &Isometry3<f64>) -> Isometry3<f64> {
     )
 }
 
-fn huber(e2: f64, o: &Observation, robust: bool) -> f64 {
-    let th = if o.ur.is_some() {
-        CHI2_STEREO
-    } else {
-        CHI2_MONO
-    };
-    if robust && e2 > th {
+/// The Huber cost of a squared error `e2` (the kernel's threshold `th`).
+pub(crate) fn huber_cost(e2: f64, th: f64) -> f64 {
+    if e2 > th {
         2.0 * (th * e2).sqrt() - th
+    } else {
+        e2
+    }
+}
+
+fn huber(e2: f64, o: &Observation, robust: bool) -> f64 {
+    if robust {
+        huber_cost(e2, chi2_threshold(o.ur.is_some()))
     } else {
         e2
     }

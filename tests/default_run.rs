@@ -137,7 +137,7 @@ fn default_run_renders_the_scene_runs_every_service_and_writes_the_report() {
 
     // Ablation on the first 40 frames of the same scene: no masks,
     // ground-truth masks (IoU 1 by construction), blackout.
-    let scene = out.join("default-scene-v1/scene");
+    let scene = out.join("default-scene-v2/scene");
     let abl = dir.join("ablation");
     let o = dynslam_in_repo(&[
         "ablate",

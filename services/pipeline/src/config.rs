@@ -40,6 +40,10 @@ pub struct CameraConfig {
     pub cy: f64,
     /// OpenCV order: k1, k2, p1, p2, k3.
     pub distortion: [f64; 5],
+    /// Rolling shutter: seconds from the first image row's exposure to the
+    /// last row's (0: global shutter). Tracking moves every keypoint to the
+    /// middle row's instant with the motion model's rotation.
+    pub readout_s: f64,
 }
 
 impl Default for CameraConfig {
@@ -50,6 +54,7 @@ impl Default for CameraConfig {
             cx: 318.643040,
             cy: 255.313989,
             distortion: [0.262383, -0.953104, -0.005358, 0.002628, 1.163314],
+            readout_s: 0.018,
         }
     }
 }
@@ -341,6 +346,12 @@ impl PipelineConfig {
             return Err(
                 "key `camera`: fx and fy must be positive, cx, cy and distortion finite".into(),
             );
+        }
+        if !(0.0..0.2).contains(&c.readout_s) {
+            return Err(format!(
+                "key `camera.readout_s`: {} is not a rolling-shutter readout time in seconds (0 <= s < 0.2; 0 for a global shutter)",
+                c.readout_s
+            ));
         }
         let s = &self.supervisor;
         if s.restart_backoff_initial_ms == 0

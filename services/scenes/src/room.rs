@@ -160,8 +160,8 @@ pub fn render_room(
         .collect();
 
     for_each_frame("room", options.frames, |k| {
-        let pose = camera_pose(stamps[k] - t0, duration);
-        let (rgb, depth) = render_frame(&pose, &rays, w, h, camera);
+        let rows = row_poses(stamps[k] - t0, duration, h, camera.readout_s);
+        let (rgb, depth) = render_frame(&rows, &rays, w, h, camera);
         let name = format!("{:.6}.png", stamps[k]);
         rgb.save(output.join("rgb").join(&name))
             .and_then(|()| depth.save(output.join("depth").join(&name)))
@@ -226,18 +226,32 @@ pub fn default_scene(
     Ok((scene, summary))
 }
 
-/// Colour and 16-bit depth of one frame.
+/// The camera pose of every image row of the frame at `t`: a rolling
+/// shutter (`readout_s` > 0) exposes row y `readout_s * (y - h/2) / h`
+/// seconds after the middle row, whose pose is the frame's ground truth (the
+/// instant the SLAM core reports, see `System::track_rgbd`).
+fn row_poses(t: f64, duration: f64, h: usize, readout_s: f64) -> Vec<Isometry3<f64>> {
+    (0..h)
+        .map(|y| {
+            let offset = readout_s * (y as f64 - h as f64 / 2.0) / h as f64;
+            camera_pose(t + offset, duration)
+        })
+        .collect()
+}
+
+/// Colour and 16-bit depth of one frame, row `y` seen from `rows[y]`.
 fn render_frame(
-    pose: &Isometry3<f64>,
+    rows: &[Isometry3<f64>],
     rays: &[Vector3<f64>],
     w: usize,
     h: usize,
     camera: &Camera,
 ) -> (RgbImage, ImageBuffer<Luma<u16>, Vec<u16>>) {
-    let origin = pose.translation.vector;
     let mut rgb = RgbImage::new(w as u32, h as u32);
     let mut depth = ImageBuffer::<Luma<u16>, Vec<u16>>::new(w as u32, h as u32);
     for (i, ray) in rays.iter().enumerate() {
+        let pose = &rows[i / w];
+        let origin = pose.translation.vector;
         let dir = pose.rotation * ray;
         let hit = cast(&origin, &dir);
         // Footprint of a pixel on the surface (metres), for filtering.
@@ -510,6 +524,18 @@ mod tests {
         let pose = gt.poses[0];
         let hit = cast(&pose.translation.vector, &(pose.rotation * ray));
         let stored = depth.get_pixel(u, v)[0] as f64 / 5000.0;
+        assert!((stored - hit.t).abs() < 1e-3, "{stored} vs {}", hit.t);
+        // The top row was exposed half a readout earlier (rolling shutter).
+        assert!(cam_small.readout_s > 0.0);
+        let (x, y) = cam_small.undistort(u as f64, 0.0);
+        let ray = Vector3::new(
+            (x - cam_small.cx) / cam_small.fx,
+            (y - cam_small.cy) / cam_small.fy,
+            1.0,
+        );
+        let early = camera_pose(-cam_small.readout_s / 2.0, 1.0 / 30.0);
+        let hit = cast(&early.translation.vector, &(early.rotation * ray));
+        let stored = depth.get_pixel(u, 0)[0] as f64 / 5000.0;
         assert!((stored - hit.t).abs() < 1e-3, "{stored} vs {}", hit.t);
         assert!(depth.pixels().all(|p| p[0] > 0));
         // Texture: many distinct grey levels, not a flat fill.

@@ -68,7 +68,9 @@ impl Tracker for RgbdTracker {
             rgb = &self.painted;
             mask = None;
         }
-        let r = self.system.track_rgbd(rgb, &self.depth, mask, w, h);
+        let r = self
+            .system
+            .track_rgbd(rgb, &self.depth, mask, w, h, frame.header.source_timestamp);
         let (t, q) = (r.pose_wc.translation.vector, r.pose_wc.rotation);
         TrackOutcome {
             pose: [t.x, t.y, t.z, q.i, q.j, q.k, q.w],

@@ -11,7 +11,7 @@ use slam::core::camera::Camera;
 
 /// Bump when the renderer or the default walks change, so old renders are
 /// not reused.
-pub const FOLDER: &str = "default-scene-v1";
+pub const FOLDER: &str = "default-scene-v2";
 
 /// The default scene under `output_dir`, rendered first when missing or
 /// incomplete; returns the dynamic sequence's folder (absolute).

@@ -32,7 +32,7 @@ enum Command {
         /// TUM RGB-D folder (or image folder with `--source images`);
         /// default: `source.path` of the config, and when that is empty too
         /// the embedded default scene (a rendered room with people walking
-        /// through it, rendered once into OUTPUT_DIR/default-scene-v1).
+        /// through it, rendered once into OUTPUT_DIR/default-scene-v2).
         dataset: Option<PathBuf>,
         /// Pipeline configuration.
         #[arg(long, default_value = "configs/pipeline.toml")]

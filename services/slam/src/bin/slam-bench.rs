@@ -3,7 +3,8 @@
 //! and, with ground truth, ATE. `just bench-slam` runs it on the shared
 //! sequence.
 //!
-//! `slam-bench [DATASET] [--masks] [--limit N] [--threads N] [--verbose] [--out trajectory.txt]`
+//! `slam-bench [DATASET] [--masks] [--skip N] [--limit N] [--threads N] [--local-ba N]
+//! [--readout S] [--verbose] [--out trajectory.txt]`
 //! With more than one extraction thread it also measures extraction alone
 //! with 1 and N threads on the same frames and prints the ratio.
 //! `--masks` feeds the ground-truth masks of a `dynslam synth` folder.
@@ -33,6 +34,9 @@ struct Args {
     /// Use the ground-truth masks (masks.txt) of a synthesised sequence.
     #[arg(long)]
     masks: bool,
+    /// Start at this frame (with --limit: a slice of the sequence).
+    #[arg(long, default_value_t = 0)]
+    skip: usize,
     #[arg(long)]
     limit: Option<usize>,
     /// Print every frame's state, features, inliers and keyframe flag.
@@ -48,13 +52,32 @@ struct Args {
     /// (default: the library's, off).
     #[arg(long)]
     local_ba: Option<usize>,
+    /// Rolling-shutter readout in seconds (default: `camera.readout_s` of
+    /// the config; 0 turns the correction off).
+    #[arg(long)]
+    readout: Option<f64>,
 }
 
 fn main() -> Result<()> {
     let args = Args::parse();
     let cfg = PipelineConfig::load(&args.config)?;
-    let camera = Camera::from_config(&cfg.camera, cfg.source.depth_scale as f64);
+    let mut camera = Camera::from_config(&cfg.camera, cfg.source.depth_scale as f64);
+    if let Some(r) = args.readout {
+        anyhow::ensure!(
+            (0.0..0.2).contains(&r),
+            "--readout {r}: not a readout time in seconds (0 <= s < 0.2)"
+        );
+        camera.readout_s = r;
+    }
     let mut frames = tum_folder(&args.dataset, cfg.source.max_time_diff)?;
+    anyhow::ensure!(
+        args.skip < frames.len(),
+        "--skip {}: {} has only {} frames",
+        args.skip,
+        args.dataset.display(),
+        frames.len()
+    );
+    frames.drain(..args.skip);
     if let Some(n) = args.limit {
         frames.truncate(n);
     }
@@ -101,7 +124,14 @@ fn main() -> Result<()> {
             None => None,
         };
         let (w, h) = (rgb.width() as usize, rgb.height() as usize);
-        let r = system.track_rgbd(rgb.as_raw(), depth.as_raw(), mask.as_deref(), w, h);
+        let r = system.track_rgbd(
+            rgb.as_raw(),
+            depth.as_raw(),
+            mask.as_deref(),
+            w,
+            h,
+            f.timestamp,
+        );
         if args.verbose {
             eprintln!(
                 "{:.3} {:?} feat {} inl {} kf {} pts {}",

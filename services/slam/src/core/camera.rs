@@ -21,6 +21,8 @@ pub struct Camera {
     pub bf: f64,
     /// Depth units per metre.
     pub depth_scale: f64,
+    /// Rolling-shutter readout, first row to last (seconds; 0: global).
+    pub readout_s: f64,
 }
 
 impl Camera {
@@ -33,6 +35,7 @@ impl Camera {
             dist: c.distortion,
             bf: 40.0,
             depth_scale,
+            readout_s: c.readout_s,
         }
     }
 

@@ -425,6 +425,8 @@ mod tests {
         assert!(err.contains("run.mode"), "{err}");
         let err = PipelineConfig::parse("[run]\nspeed = -1.0\n").unwrap_err();
         assert!(err.contains("run.speed"), "{err}");
+        let err = PipelineConfig::parse("[camera]\nreadout_s = 0.5\n").unwrap_err();
+        assert!(err.contains("camera.readout_s"), "{err}");
         assert!(PipelineConfig::parse("[run\n").is_err());
     }
 

@@ -980,6 +980,66 @@ mod tests {
         assert!((t.translation.vector - truth.translation.vector).norm() < 1e-9);
     }
 
+    /// A camera turning and sliding at a constant rate, rows exposed over
+    /// 20 ms: a point seen on the top row is moved to the pixel (and depth)
+    /// where the middle row's camera sees it.
+    #[test]
+    fn rolling_shutter_keypoints_move_to_the_middle_rows_instant() {
+        let mut camera = Camera::from_config(&pipeline::config::CameraConfig::default(), 5000.0);
+        camera.dist = [0.0; 5];
+        camera.readout_s = 0.02;
+        let mut sys = System::new(SlamParams::default(), camera);
+        // Camera from world at time t: turning 1.5 rad/s about y, sliding 0.3 m/s in x.
+        let pose_at = |t: f64| {
+            Isometry3::from_parts(
+                Translation3::new(0.3 * t, 0.0, 0.0),
+                UnitQuaternion::from_euler_angles(0.0, 1.5 * t, 0.0),
+            )
+        };
+        let (dt, t_now) = (1.0 / 30.0, 3.0 / 30.0);
+        sys.recent = (0..3)
+            .map(|k| (k as f64 * dt, pose_at(k as f64 * dt)))
+            .collect();
+        let h = 480;
+        let world = Vector3::new(0.2, -0.9, 2.0);
+        // The top row (y = 0) is exposed readout/2 before the middle row.
+        let mid = pose_at(t_now);
+        let early = pose_at(t_now - camera.readout_s / 2.0);
+        let seen_top = early * Point3::from(world);
+        let (u, v) = camera.project(&seen_top.coords);
+        assert!(
+            v.abs() < 40.0,
+            "the test point should sit near the top row: v = {v}"
+        );
+        let kp = KeyPoint {
+            x: u as f32,
+            y: 0.0,
+            level: 0,
+            angle: 0.0,
+            score: 0.0,
+        };
+        let mut un = vec![(u, v)];
+        let mut depth = vec![Some(seen_top.z)];
+        sys.undo_rolling_shutter(&[kp], &mut un, &mut depth, h);
+        let seen_mid = mid * Point3::from(world);
+        let (um, vm) = camera.project(&seen_mid.coords);
+        let before = ((u - um).powi(2) + (v - vm).powi(2)).sqrt();
+        let after = ((un[0].0 - um).powi(2) + (un[0].1 - vm).powi(2)).sqrt();
+        assert!(before > 5.0, "the shutter should matter here: {before} px");
+        // First order in the motion: what is left is the turn of the slide
+        // over the interval (about 0.1 px here).
+        assert!(
+            after < 0.25,
+            "{after} px off after the correction ({before} before)"
+        );
+        assert!((depth[0].unwrap() - seen_mid.z).abs() < 1e-3);
+        // A global shutter leaves keypoints alone.
+        sys.camera.readout_s = 0.0;
+        let mut same = vec![(u, v)];
+        sys.undo_rolling_shutter(&[kp], &mut same, &mut [Some(seen_top.z)], h);
+        assert_eq!(same[0], (u, v));
+    }
+
     #[test]
     fn dilation_grows_by_the_radius() {
         let (w, h) = (9, 7);

@@ -75,6 +75,31 @@ fn tracks_the_whole_sequence_accurately() {
         sys.keyframes.len()
     );
     assert!(frac >= 0.99, "tracked {frac}");
+    // Covisibility graph and spanning tree: symmetric edges weighted by the
+    // points two keyframes both measured, every keyframe but the first
+    // hangs from an older one.
+    let shared = |a: usize, b: usize| {
+        sys.keyframes[a]
+            .points
+            .iter()
+            .filter(|p| sys.keyframes[b].points.contains(p))
+            .count() as u32
+    };
+    for (id, kf) in sys.keyframes.iter().enumerate() {
+        assert_eq!(kf.parent.is_none(), id == 0, "keyframe {id}");
+        assert!(kf.parent.is_none_or(|p| p < id), "keyframe {id}");
+        assert!(
+            id == 0 || !kf.covisible.is_empty(),
+            "keyframe {id} has no neighbour"
+        );
+        for &(other, n) in &kf.covisible {
+            assert!(n >= 1 && n <= shared(id, other), "{id}-{other}: {n}");
+            assert!(
+                sys.keyframes[other].covisible.contains(&(id, n)),
+                "edge {id}-{other} one way only"
+            );
+        }
+    }
     // The target; with the rolling-shutter correction (the default
     // camera's readout, 18 ms) this core reaches about 0.012 m, without it
     // 0.034 m.

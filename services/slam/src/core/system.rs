@@ -32,6 +32,12 @@ use super::orb::{hamming, Descriptor, GrayU8, KeyPoint, OrbExtractor, OrbParams}
 
 /// Tracked frames the rolling-shutter correction estimates the motion over.
 const MOTION_HISTORY: usize = 3;
+/// Shared points that make two keyframes neighbours (ORB-SLAM2's 15).
+const COVISIBILITY_MIN: u32 = 15;
+/// Neighbours of each directly covisible keyframe added to the local map.
+const LOCAL_NEIGHBOURS: usize = 10;
+/// At most this many keyframes in the local map (ORB-SLAM2's 80).
+const MAX_LOCAL_KEYFRAMES: usize = 80;
 
 #[derive(Debug, Clone, Copy)]
 pub struct SlamParams {
@@ -41,7 +47,8 @@ pub struct SlamParams {
     pub max_depth_m: f64,
     /// Dynamic masks are grown by this many pixels before filtering.
     pub mask_dilation_px: usize,
-    /// Keyframes whose points form the local map.
+    /// The newest keyframes, always part of the local map (with the older
+    /// ones covisibility adds, see `local_points`).
     pub local_keyframes: usize,
     /// A keyframe at the latest after this many frames.
     pub max_frames_between_keyframes: u32,
@@ -79,9 +86,10 @@ impl Default for SlamParams {
 pub struct MapPoint {
     pub position: Vector3<f64>,
     pub descriptor: Descriptor,
-    /// Last keyframe that created or observed it.
-    pub last_keyframe: usize,
-    /// Frames in which it was predicted visible / actually matched.
+    /// Keyframes that measured it (ids, in insertion order).
+    pub observers: Vec<usize>,
+    /// Frames in which it was predicted visible / actually matched; 0
+    /// visible: culled (kept so ids stay valid, never matched again).
     pub visible: u32,
     pub found: u32,
     /// Colour of the pixel it was created from (for the PLY map).
@@ -107,6 +115,14 @@ pub struct KeyFrame {
     pub points: Vec<usize>,
     /// How it measured each of them (same order as `points`).
     pub measurements: Vec<KeyFrameObservation>,
+    /// Covisibility graph: keyframes sharing at least `COVISIBILITY_MIN`
+    /// points with this one (or the one sharing most), with the count,
+    /// most shared first.
+    pub covisible: Vec<(usize, u32)>,
+    /// Spanning tree: the keyframe it shared most points with when it was
+    /// inserted (None for the first). With the covisibility graph this is
+    /// what a loop closer corrects along (ORB-SLAM2's essential graph).
+    pub parent: Option<usize>,
 }
 
 /// One frame's features.
@@ -199,6 +215,8 @@ pub struct System {
     /// oldest first, at most `MOTION_HISTORY` (cleared when lost): the
     /// rolling-shutter correction's motion estimate.
     recent: Vec<(f64, Isometry3<f64>)>,
+    /// Map points the last tracked frame matched (seeds the local map).
+    last_matched: Vec<usize>,
     frames_since_keyframe: u32,
     /// Inliers of the frame that made the last keyframe.
     reference_inliers: usize,
@@ -224,6 +242,7 @@ impl System {
             last_pose: None,
             velocity: None,
             recent: Vec::new(),
+            last_matched: Vec::new(),
             frames_since_keyframe: 0,
             reference_inliers: 0,
             lost: false,
@@ -345,6 +364,7 @@ impl System {
                 self.velocity = Some(renormalized(&(pose_cw * last.inverse())));
             }
             self.last_pose = Some(pose_cw);
+            self.last_matched = matched.iter().flatten().copied().collect();
             if self.recent.len() == MOTION_HISTORY {
                 self.recent.remove(0);
             }
@@ -547,14 +567,68 @@ impl System {
         Some((pose, matched, n))
     }
 
+    /// The local map: the newest `local_keyframes` keyframes, older ones
+    /// that observe points the last frame tracked (ORB-SLAM2's K1, most
+    /// shared first), and the strongest covisible neighbours and
+    /// spanning-tree parents of all of them; the points they observe
+    /// (culled ones left out). Measured on fr1_rpy and the room, adding K1
+    /// and the neighbours to the newest keyframes changed no figure (the
+    /// camera rarely comes back to points older than 20 keyframes there); it
+    /// is what a camera returning to a place after a long way needs.
     fn local_points(&self) -> Vec<usize> {
+        let mut votes: HashMap<usize, u32> = HashMap::new();
+        for &p in &self.last_matched {
+            for &k in &self.points[p].observers {
+                *votes.entry(k).or_default() += 1;
+            }
+        }
+        let mut direct: Vec<(usize, u32)> = votes.into_iter().collect();
+        direct.sort_unstable_by(|a, b| b.1.cmp(&a.1).then(b.0.cmp(&a.0)));
         let first = self
             .keyframes
             .len()
             .saturating_sub(self.params.local_keyframes);
-        (0..self.points.len())
-            .filter(|&i| self.points[i].last_keyframe >= first)
-            .collect()
+        let mut local: Vec<usize> = (first..self.keyframes.len()).rev().collect();
+        local.extend(
+            direct
+                .iter()
+                .map(|&(k, _)| k)
+                .filter(|&k| k < first)
+                .take(LOCAL_NEIGHBOURS),
+        );
+        let mut in_local = vec![false; self.keyframes.len()];
+        for &k in &local {
+            in_local[k] = true;
+        }
+        let mut add = |k: usize, local: &mut Vec<usize>| {
+            if local.len() < MAX_LOCAL_KEYFRAMES && !in_local[k] {
+                in_local[k] = true;
+                local.push(k);
+            }
+        };
+        for i in 0..local.len() {
+            let kf = &self.keyframes[local[i]];
+            for &(n, _) in kf.covisible.iter().take(LOCAL_NEIGHBOURS) {
+                add(n, &mut local);
+            }
+            if let Some(parent) = kf.parent {
+                add(parent, &mut local);
+            }
+        }
+        let mut taken = vec![false; self.points.len()];
+        let mut points = Vec::new();
+        for &k in &local {
+            for &p in &self.keyframes[k].points {
+                if !taken[p] && self.points[p].visible > 0 {
+                    taken[p] = true;
+                    points.push(p);
+                }
+            }
+        }
+        // Id order: which of two equally good map points wins a keypoint
+        // must not depend on how the local map was gathered.
+        points.sort_unstable();
+        points
     }
 
     /// For each keypoint, the best map point projecting within `radius`
@@ -659,7 +733,7 @@ impl System {
         };
         for (k, m) in matched.iter().enumerate() {
             if let Some(p) = m {
-                self.points[*p].last_keyframe = id;
+                self.points[*p].observers.push(id);
                 observed.push(*p);
                 measurements.push(measure(k));
             } else if let Some(d) = frame.depth[k] {
@@ -668,7 +742,7 @@ impl System {
                 self.points.push(MapPoint {
                     position: world.coords,
                     descriptor: frame.descs[k],
-                    last_keyframe: id,
+                    observers: vec![id],
                     visible: 1,
                     found: 1,
                     colour: frame.colours[k],
@@ -677,10 +751,18 @@ impl System {
                 measurements.push(measure(k));
             }
         }
+        let (covisible, parent) = self.covisibility_of(id, &observed);
+        for &(other, n) in &covisible {
+            let list = &mut self.keyframes[other].covisible;
+            list.push((id, n));
+            list.sort_unstable_by(|a, b| b.1.cmp(&a.1));
+        }
         self.keyframes.push(KeyFrame {
             pose_cw: *pose_cw,
             points: observed,
             measurements,
+            covisible,
+            parent,
         });
         if self.params.local_ba_keyframes > 1 {
             let t = std::time::Instant::now();
@@ -693,10 +775,29 @@ impl System {
         // that should have seen them stop being matched.
         for p in &mut self.points {
             if p.visible >= 20 && (p.found as f64) < 0.25 * p.visible as f64 {
-                p.last_keyframe = 0;
                 p.visible = 0;
             }
         }
+    }
+
+    /// Edges of keyframe `id` (observing `observed`) in the covisibility
+    /// graph, most shared first, and its spanning-tree parent.
+    fn covisibility_of(&self, id: usize, observed: &[usize]) -> (Vec<(usize, u32)>, Option<usize>) {
+        let mut shared: HashMap<usize, u32> = HashMap::new();
+        for &p in observed {
+            for &k in &self.points[p].observers {
+                if k != id {
+                    *shared.entry(k).or_default() += 1;
+                }
+            }
+        }
+        let mut all: Vec<(usize, u32)> = shared.into_iter().collect();
+        all.sort_unstable_by(|a, b| b.1.cmp(&a.1).then(b.0.cmp(&a.0)));
+        let parent = all.first().map(|&(k, _)| k);
+        let strong = all.iter().take_while(|e| e.1 >= COVISIBILITY_MIN).count();
+        // A keyframe with no strong neighbour keeps its best one.
+        all.truncate(strong.max(1));
+        (all, parent)
     }
 
     /// Local bundle adjustment after a keyframe insertion: the newest
@@ -808,8 +909,9 @@ impl System {
             .collect();
         outliers.sort_unstable_by(|a, b| b.cmp(a));
         for (kid, j) in outliers {
-            self.keyframes[kid].points.swap_remove(j);
+            let p = self.keyframes[kid].points.swap_remove(j);
             self.keyframes[kid].measurements.swap_remove(j);
+            self.points[p].observers.retain(|&k| k != kid);
         }
         // The newest keyframe is the current frame: tracking continues from
         // its adjusted pose.

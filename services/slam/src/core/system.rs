@@ -755,7 +755,7 @@ impl System {
         for &(other, n) in &covisible {
             let list = &mut self.keyframes[other].covisible;
             list.push((id, n));
-            list.sort_unstable_by(|a, b| b.1.cmp(&a.1));
+            list.sort_unstable_by_key(|e| std::cmp::Reverse(e.1));
         }
         self.keyframes.push(KeyFrame {
             pose_cw: *pose_cw,

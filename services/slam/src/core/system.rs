@@ -310,7 +310,13 @@ impl System {
             (d >= self.params.min_depth_m && d <= self.params.max_depth_m).then_some(d)
         };
         let mut depths: Vec<Option<f64>> = kps.iter().map(depth_of).collect();
-        self.undo_rolling_shutter(&kps, &mut un, &mut depths, height);
+        let motion = self.shutter_motion(None);
+        // Raw positions for the second pass (see `refine_for_shutter`).
+        let raw = motion.map(|m| {
+            let raw = (un.clone(), depths.clone());
+            self.undo_rolling_shutter(&kps, &mut un, &mut depths, height, m);
+            raw
+        });
         let colours: Vec<[u8; 3]> = kps
             .iter()
             .map(|k| {
@@ -320,7 +326,7 @@ impl System {
             })
             .collect();
         let grid = Grid::new(&un, width, height);
-        let frame = Frame {
+        let mut frame = Frame {
             kps,
             un,
             descs,
@@ -339,7 +345,7 @@ impl System {
             ..Default::default()
         };
         let initialising = self.keyframes.is_empty();
-        let (state, pose_cw, inliers, matched) = if initialising {
+        let (state, mut pose_cw, inliers, matched) = if initialising {
             match self.initialise(&frame) {
                 true => (
                     TrackState::Ok,
@@ -357,6 +363,13 @@ impl System {
         } else {
             self.track(&frame)
         };
+        if let (TrackState::Ok, Some(raw)) = (state, &raw) {
+            if let Some(refined) =
+                self.refine_for_shutter(&mut frame, raw, &pose_cw, &matched, timestamp, height)
+            {
+                pose_cw = refined;
+            }
+        }
         // A successful initialisation made the first keyframe.
         let mut keyframe_inserted = initialising && state == TrackState::Ok;
         if matches!(state, TrackState::Ok | TrackState::Relocalised) {
@@ -418,21 +431,9 @@ impl System {
         un: &mut [(f64, f64)],
         depths: &mut [Option<f64>],
         height: usize,
+        (velocity, span): (Isometry3<f64>, f64),
     ) {
         let readout = self.camera.readout_s;
-        // The motion over the last two frame intervals: one interval's
-        // estimate feeds back (a pose error this frame is a velocity error
-        // with the opposite sign next frame) and can oscillate.
-        let (Some(&(t0, first)), Some(&(t1, last))) = (self.recent.first(), self.recent.last())
-        else {
-            return;
-        };
-        let span = t1 - t0;
-        // A gap (dropped frames, a restart) makes the motion stale.
-        if readout <= 0.0 || self.lost || !(1e-3..0.5).contains(&span) {
-            return;
-        }
-        let velocity = renormalized(&(last * first.inverse()));
         let h = height as f64;
         for ((k, p), d) in kps.iter().zip(un.iter_mut()).zip(depths.iter_mut()) {
             // Fraction of the inter-frame motion from the middle row to this one:
@@ -452,6 +453,85 @@ impl System {
                 }
             }
         }
+    }
+
+    /// The camera motion (camera from camera) the rolling-shutter
+    /// correction uses, and the seconds it spans: from the oldest remembered
+    /// tracked frame to `until` (timestamp, pose) or else to the last one.
+    /// Spanning two intervals: one interval's estimate feeds back (a pose
+    /// error this frame is a velocity error with the opposite sign next
+    /// frame) and can oscillate. None without a rolling shutter, when lost,
+    /// or across a gap (dropped frames, a restart: the motion is stale).
+    fn shutter_motion(
+        &self,
+        until: Option<(f64, Isometry3<f64>)>,
+    ) -> Option<(Isometry3<f64>, f64)> {
+        if self.camera.readout_s <= 0.0 || self.lost {
+            return None;
+        }
+        let (t0, first) = match until {
+            // Two intervals back from the current frame.
+            Some(_) => *self.recent.get(self.recent.len().checked_sub(2)?)?,
+            None => *self.recent.first()?,
+        };
+        let (t1, last) = until.or_else(|| self.recent.last().copied())?;
+        let span = t1 - t0;
+        (1e-3..0.5)
+            .contains(&span)
+            .then(|| (renormalized(&(last * first.inverse())), span))
+    }
+
+    /// Second pass of the rolling-shutter correction once the frame's pose
+    /// is known: the motion from two frames back to this one is a frame
+    /// more recent than what the first pass had. Keypoints are corrected
+    /// again from their raw positions and the pose re-optimised on the same
+    /// matches. None when it does not apply or the optimisation fails.
+    fn refine_for_shutter(
+        &self,
+        frame: &mut Frame,
+        raw: &(Vec<(f64, f64)>, Vec<Option<f64>>),
+        pose_cw: &Isometry3<f64>,
+        matched: &[Option<usize>],
+        timestamp: f64,
+        height: usize,
+    ) -> Option<Isometry3<f64>> {
+        let motion = self.shutter_motion(Some((timestamp, *pose_cw)))?;
+        frame.un.clone_from(&raw.0);
+        frame.depth.clone_from(&raw.1);
+        self.undo_rolling_shutter(&frame.kps, &mut frame.un, &mut frame.depth, height, motion);
+        let ids: Vec<(usize, usize)> = matched
+            .iter()
+            .enumerate()
+            .filter_map(|(k, m)| m.map(|p| (k, p)))
+            .collect();
+        let (pose, inlier) = optimize_pose(&self.camera, pose_cw, &self.observations(frame, &ids));
+        let n = inlier.iter().filter(|&&b| b).count();
+        let finite = pose
+            .translation
+            .vector
+            .iter()
+            .chain(pose.rotation.coords.iter())
+            .all(|x| x.is_finite());
+        (n >= self.params.min_inliers && finite).then_some(pose)
+    }
+
+    /// Pose-optimisation measurements of keypoint k matched to map point p.
+    fn observations(&self, frame: &Frame, ids: &[(usize, usize)]) -> Vec<Observation> {
+        ids.iter()
+            .map(|&(k, p)| {
+                let (u, v) = frame.un[k];
+                let sigma = self.extractor.scale(frame.kps[k].level) as f64;
+                Observation {
+                    world: self.points[p].position,
+                    u,
+                    v,
+                    ur: frame.depth[k]
+                        .filter(|&d| d < self.params.close_depth_m)
+                        .map(|d| u - self.camera.bf / d),
+                    info: 1.0 / (sigma * sigma),
+                }
+            })
+            .collect()
     }
 
     fn bounds(&mut self, width: usize, height: usize) -> Bounds {
@@ -528,22 +608,7 @@ impl System {
             if ids.len() < self.params.min_inliers {
                 return None;
             }
-            let obs: Vec<Observation> = ids
-                .iter()
-                .map(|&(k, p)| {
-                    let (u, v) = frame.un[k];
-                    let sigma = self.extractor.scale(frame.kps[k].level) as f64;
-                    Observation {
-                        world: self.points[p].position,
-                        u,
-                        v,
-                        ur: frame.depth[k]
-                            .filter(|&d| d < self.params.close_depth_m)
-                            .map(|d| u - self.camera.bf / d),
-                        info: 1.0 / (sigma * sigma),
-                    }
-                })
-                .collect();
+            let obs = self.observations(frame, &ids);
             let (optimised, inlier) = optimize_pose(&self.camera, &pose, &obs);
             n = inlier.iter().filter(|&&b| b).count();
             let finite = optimised
@@ -1122,7 +1187,8 @@ mod tests {
         };
         let mut un = vec![(u, v)];
         let mut depth = vec![Some(seen_top.z)];
-        sys.undo_rolling_shutter(&[kp], &mut un, &mut depth, h);
+        let motion = sys.shutter_motion(None).expect("a moving camera");
+        sys.undo_rolling_shutter(&[kp], &mut un, &mut depth, h, motion);
         let seen_mid = mid * Point3::from(world);
         let (um, vm) = camera.project(&seen_mid.coords);
         let before = ((u - um).powi(2) + (v - vm).powi(2)).sqrt();
@@ -1135,11 +1201,11 @@ mod tests {
             "{after} px off after the correction ({before} before)"
         );
         assert!((depth[0].unwrap() - seen_mid.z).abs() < 1e-3);
-        // A global shutter leaves keypoints alone.
+        // A global shutter needs no motion, a stale one is not used.
         sys.camera.readout_s = 0.0;
-        let mut same = vec![(u, v)];
-        sys.undo_rolling_shutter(&[kp], &mut same, &mut [Some(seen_top.z)], h);
-        assert_eq!(same[0], (u, v));
+        assert!(sys.shutter_motion(None).is_none());
+        sys.camera.readout_s = 0.02;
+        assert!(sys.shutter_motion(Some((t_now + 1.0, mid))).is_none());
     }
 
     #[test]

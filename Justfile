@@ -78,6 +78,11 @@ bench-models: build setup
 bench-slam dataset=tum *args="": build
     ./target/release/slam-bench "{{dataset}}" {{args}}
 
+# Our ORB extractor against kornia-imgproc's on the same frames and tracker (own build folder: target/kornia).
+bench-orb dataset=tum *args="":
+    cargo build --release -p slam --features kornia --bin slam-bench --target-dir target/kornia
+    ./target/kornia/release/slam-bench "{{dataset}}" --extractor kornia --out bench-results/slam_trajectory_kornia.txt {{args}}
+
 # Mask quality against ground truth on a synthesised sequence (made first if missing): segmenter and propagator IoU.
 eval-masks: build setup synth-people
     ./target/release/dynslam masks-eval {{people}}

@@ -319,8 +319,10 @@ pub struct TrackCounts {
     pub map_points: u32,
     pub keyframes: u32,
     /// Time of SLAM's steps for this frame (microseconds): feature
-    /// extraction, and local mapping (bundle adjustment after a keyframe);
-    /// the rest of the tracking span is matching and pose optimisation.
+    /// extraction, and local mapping of the keyframe whose mapping finished
+    /// during this frame (on the local-mapping thread, overlapping
+    /// extraction); the rest of the tracking span is matching and pose
+    /// optimisation.
     pub extract_us: u32,
     pub mapping_us: u32,
 }

@@ -83,8 +83,9 @@ impl Tracker for RgbdTracker {
         }
     }
 
-    fn map_points(&self) -> Vec<ColouredPoint> {
+    fn map_points(&mut self) -> Vec<ColouredPoint> {
         self.system
+            .map()
             .points
             .iter()
             // Culled points keep their slot but are no longer matched.

@@ -72,21 +72,30 @@ fn tracks_the_whole_sequence_accurately() {
         "tracked {:.1} %, ATE rmse {:.4} m, {} keyframes",
         100.0 * frac,
         s.ate_rmse_m,
-        sys.keyframes.len()
+        sys.map().keyframes.len()
     );
     assert!(frac >= 0.99, "tracked {frac}");
     // Covisibility graph and spanning tree: symmetric edges weighted by the
     // points two keyframes both measured, every keyframe but the first
     // hangs from an older one.
+    let map = sys.map();
     let shared = |a: usize, b: usize| {
-        sys.keyframes[a]
+        map.keyframes[a]
             .points
             .iter()
-            .filter(|p| sys.keyframes[b].points.contains(p))
+            .filter(|p| map.keyframes[b].points.contains(p))
             .count() as u32
     };
-    for (id, kf) in sys.keyframes.iter().enumerate() {
+    for (id, kf) in map.keyframes.iter().enumerate() {
+        if kf.culled {
+            assert!(kf.points.is_empty() && kf.covisible.is_empty());
+            continue;
+        }
         assert_eq!(kf.parent.is_none(), id == 0, "keyframe {id}");
+        assert!(
+            kf.parent.is_none_or(|p| !map.keyframes[p].culled),
+            "keyframe {id} hangs from a culled one"
+        );
         assert!(kf.parent.is_none_or(|p| p < id), "keyframe {id}");
         assert!(
             id == 0 || !kf.covisible.is_empty(),
@@ -95,7 +104,7 @@ fn tracks_the_whole_sequence_accurately() {
         for &(other, n) in &kf.covisible {
             assert!(n >= 1 && n <= shared(id, other), "{id}-{other}: {n}");
             assert!(
-                sys.keyframes[other].covisible.contains(&(id, n)),
+                map.keyframes[other].covisible.contains(&(id, n)),
                 "edge {id}-{other} one way only"
             );
         }
@@ -120,9 +129,10 @@ fn masked_region_loses_its_features_and_tracking_goes_on() {
     // No map point of the first keyframe (camera = world frame) comes from
     // the masked region (plus its dilation).
     let cam = Camera::from_config(&CameraConfig::default(), 5000.0);
-    let first = &sys.keyframes[0];
+    let map = sys.map();
+    let first = &map.keyframes[0];
     for &p in &first.points {
-        let pc = first.pose_cw * nalgebra::Point3::from(sys.points[p].position);
+        let pc = first.pose_cw * nalgebra::Point3::from(map.points[p].position);
         let (u, v) = cam.project(&pc.coords);
         let (ud, _) = cam.distort(u, v);
         assert!(
@@ -171,4 +181,77 @@ fn malformed_frames_are_lost_not_fatal_and_tracking_comes_back() {
     // Buffers that do not match the frame size are refused, not read out of bounds.
     let r = sys.track_rgbd(&blank[..100], &zeros[..10], None, 640, 480, t20 + 1.0);
     assert_eq!(r.state, TrackState::Skipped);
+}
+
+#[test]
+fn a_camera_that_stays_put_keeps_few_keyframes() {
+    // The same real frame for 4 s: a keyframe is due every 10 frames, and
+    // each one measures the points the others measure, so keyframe culling
+    // removes them again (the first, which defines the world, stays).
+    let data = load(1);
+    let (_, rgb, depth) = &data[0];
+    let mut sys = system();
+    for i in 0..120 {
+        let r = sys.track_rgbd(
+            rgb.as_raw(),
+            depth.as_raw(),
+            None,
+            640,
+            480,
+            i as f64 / 30.0,
+        );
+        assert!(tracked(r.state), "frame {i}: {:?}", r.state);
+    }
+    let map = sys.map();
+    let inserted = map.keyframes.len();
+    let live: Vec<usize> = (0..inserted)
+        .filter(|&k| !map.keyframes[k].culled)
+        .collect();
+    eprintln!("{inserted} keyframes inserted, live: {live:?}");
+    assert!(inserted >= 10, "{inserted} keyframes inserted");
+    assert!(live.len() <= inserted / 2, "live {live:?} of {inserted}");
+    assert_eq!(live[0], 0);
+    for &k in &live[1..] {
+        let kf = &map.keyframes[k];
+        let parent = kf.parent.expect("a parent");
+        assert!(
+            !map.keyframes[parent].culled,
+            "{k} hangs from culled {parent}"
+        );
+    }
+    for (k, kf) in map.keyframes.iter().enumerate() {
+        if kf.culled {
+            assert!(kf.points.is_empty(), "culled {k} keeps points");
+            for other in &map.keyframes {
+                assert!(other.covisible.iter().all(|&(o, _)| o != k));
+            }
+        }
+    }
+    for p in &map.points {
+        assert!(p.observers.iter().all(|&k| !map.keyframes[k].culled));
+    }
+}
+
+#[test]
+fn mapping_on_its_thread_gives_the_same_poses_as_inline() {
+    let data = load(40);
+    let run = |thread: bool| {
+        let mut sys = System::new(
+            SlamParams {
+                mapping_thread: thread,
+                local_ba_keyframes: 5,
+                ..SlamParams::default()
+            },
+            Camera::from_config(&CameraConfig::default(), 5000.0),
+        );
+        data.iter()
+            .map(|(t, rgb, depth)| {
+                let r = sys.track_rgbd(rgb.as_raw(), depth.as_raw(), None, 640, 480, *t);
+                (r.pose_wc, r.keyframe_inserted)
+            })
+            .collect::<Vec<_>>()
+    };
+    let (threaded, inline) = (run(true), run(false));
+    assert!(threaded.iter().filter(|r| r.1).count() >= 3);
+    assert_eq!(threaded, inline);
 }

@@ -4,7 +4,7 @@
 //! sequence.
 //!
 //! `slam-bench [DATASET] [--masks] [--skip N] [--limit N] [--threads N] [--local-ba N]
-//! [--readout S] [--verbose] [--out trajectory.txt]`
+//! [--readout S] [--inline-mapping] [--extractor own|kornia] [--verbose] [--out trajectory.txt]`
 //! With more than one extraction thread it also measures extraction alone
 //! with 1 and N threads on the same frames and prints the ratio.
 //! `--masks` feeds the ground-truth masks of a `dynslam synth` folder.
@@ -19,7 +19,7 @@ use pipeline::progress::Progress;
 use pipeline::stats::percentile;
 use shared_types::TrackState;
 use slam::core::camera::Camera;
-use slam::core::orb::{GrayU8, OrbExtractor, OrbParams};
+use slam::core::orb::{GrayU8, OrbBackend, OrbExtractor, OrbParams};
 use slam::core::system::{SlamParams, System};
 use slam::eval::{evaluate_files, EvalOptions};
 use slam::trajectory::Trajectory;
@@ -52,10 +52,32 @@ struct Args {
     /// (default: the library's, off).
     #[arg(long)]
     local_ba: Option<usize>,
+    /// Local mapping inline after each keyframe instead of on its thread
+    /// (same results; to see what the thread saves).
+    #[arg(long)]
+    inline_mapping: bool,
     /// Rolling-shutter readout in seconds (default: `camera.readout_s` of
     /// the config; 0 turns the correction off).
     #[arg(long)]
     readout: Option<f64>,
+    /// ORB extractor: `own` (the product's) or `kornia` (kornia-imgproc's,
+    /// needs a build with `--features slam/kornia`), to compare them.
+    #[arg(long, default_value = "own")]
+    extractor: String,
+}
+
+fn orb_backend(name: &str) -> Result<OrbBackend> {
+    match name {
+        "own" => Ok(OrbBackend::Own),
+        #[cfg(feature = "kornia")]
+        "kornia" => Ok(OrbBackend::Kornia),
+        #[cfg(not(feature = "kornia"))]
+        "kornia" => anyhow::bail!(
+            "--extractor kornia: this slam-bench was built without kornia; \
+             build it with `cargo build --release -p slam --features kornia`"
+        ),
+        other => anyhow::bail!("--extractor {other}: expected `own` or `kornia`"),
+    }
 }
 
 fn main() -> Result<()> {
@@ -96,6 +118,8 @@ fn main() -> Result<()> {
     anyhow::ensure!(threads >= 1, "--threads must be at least 1");
     let mut params = SlamParams::default();
     params.orb.threads = threads;
+    params.orb.backend = orb_backend(&args.extractor)?;
+    params.mapping_thread = !args.inline_mapping;
     if let Some(n) = args.local_ba {
         params.local_ba_keyframes = n;
     }
@@ -176,20 +200,37 @@ fn main() -> Result<()> {
             percentile(v, 99.0)
         );
     }
+    let map = system.map();
+    let culled = map.keyframes.iter().filter(|k| k.culled).count();
     println!(
-        "tracked {tracked}/{} frames ({:.1} %), {} keyframes, {} map points",
+        "tracked {tracked}/{} frames ({:.1} %), {} keyframes ({} inserted, {culled} culled), {} map points ({} in use)",
         frames.len(),
         100.0 * tracked as f64 / frames.len().max(1) as f64,
-        system.keyframes.len(),
-        system.points.len()
+        map.keyframes.len() - culled,
+        map.keyframes.len(),
+        map.points.len(),
+        map.points.iter().filter(|p| p.visible > 0).count()
     );
     println!("peak memory (VmHWM) {:.1} MiB", peak_rss_mib());
+    let mut variants = vec![(format!("{threads} threads"), orb(threads, OrbBackend::Own))];
     if threads > 1 {
-        let (one, many) = extraction_speedup(&frames, threads)?;
+        variants.insert(0, ("1 thread".to_string(), orb(1, OrbBackend::Own)));
+    }
+    if params.orb.backend != OrbBackend::Own {
+        variants.push(("kornia".to_string(), orb(threads, params.orb.backend)));
+    }
+    if variants.len() > 1 {
+        let medians = extraction_medians(&frames, &variants)?;
+        let base = medians[0];
+        let figures: Vec<String> = variants
+            .iter()
+            .zip(&medians)
+            .map(|((name, _), m)| format!("{name} p50 {m:.2} ms (x{:.2})", base / m))
+            .collect();
         println!(
-            "extraction alone, first {} frames, alternating: 1 thread p50 {one:.2} ms, {threads} threads p50 {many:.2} ms (x{:.2})",
+            "extraction alone, first {} frames, alternating: {}",
             frames.len().min(SPEEDUP_FRAMES),
-            one / many
+            figures.join(", ")
         );
     }
     let gt = args.dataset.join("groundtruth.txt");
@@ -206,32 +247,40 @@ fn main() -> Result<()> {
 
 const SPEEDUP_FRAMES: usize = 60;
 
-/// Median extraction time with one thread and with `threads`, measured on
-/// the same frames in one run, alternating so both see the same machine.
-fn extraction_speedup(frames: &[FrameEntry], threads: usize) -> Result<(f64, f64)> {
-    let make = |t: usize| {
-        OrbExtractor::new(OrbParams {
-            threads: t,
-            ..OrbParams::default()
-        })
-    };
-    let (single, multi) = (make(1), make(threads));
-    let (mut a, mut b) = (Vec::new(), Vec::new());
+fn orb(threads: usize, backend: OrbBackend) -> OrbExtractor {
+    OrbExtractor::new(OrbParams {
+        threads,
+        backend,
+        ..OrbParams::default()
+    })
+}
+
+/// Median extraction time of each extractor, measured on the same frames in
+/// one run, alternating so all see the same machine.
+fn extraction_medians(
+    frames: &[FrameEntry],
+    variants: &[(String, OrbExtractor)],
+) -> Result<Vec<f64>> {
+    let mut times = vec![Vec::new(); variants.len()];
     for f in frames.iter().take(SPEEDUP_FRAMES) {
         let rgb = image::open(&f.rgb)
             .with_context(|| f.rgb.display().to_string())?
             .to_rgb8();
         let grey = GrayU8::from_rgb(rgb.as_raw(), rgb.width() as usize, rgb.height() as usize);
-        for (extractor, times) in [(&single, &mut a), (&multi, &mut b)] {
+        for ((_, extractor), times) in variants.iter().zip(&mut times) {
             let t0 = std::time::Instant::now();
             let (kps, _, _) = extractor.extract(&grey, &|_, _| true);
             times.push(t0.elapsed().as_secs_f64() * 1e3);
             std::hint::black_box(kps);
         }
     }
-    a.sort_by(f64::total_cmp);
-    b.sort_by(f64::total_cmp);
-    Ok((percentile(&a, 50.0), percentile(&b, 50.0)))
+    Ok(times
+        .iter_mut()
+        .map(|t| {
+            t.sort_by(f64::total_cmp);
+            percentile(t, 50.0)
+        })
+        .collect())
 }
 
 fn peak_rss_mib() -> f64 {

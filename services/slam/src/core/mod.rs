@@ -1,13 +1,20 @@
 //! The SLAM core (RGB-D), usable without any IPC.
 //!
 //! - [`orb`]: ORB features with the dynamic mask applied at detection.
+//! - `kornia_orb` (feature `kornia`): kornia-imgproc's ORB behind the same call.
 //! - [`camera`]: intrinsics, distortion, the RGB-D virtual baseline.
 //! - [`optimize`]: motion-only pose optimisation.
+//! - [`map`]: keyframes, points, covisibility; what local mapping does to them.
+//! - [`local_mapping`]: the thread local mapping runs on.
 //! - [`local_ba`]: local bundle adjustment (keyframe poses and points).
 //! - [`system`]: tracking, keyframes, map, relocalisation.
 
 pub mod camera;
+#[cfg(feature = "kornia")]
+pub mod kornia_orb;
 pub mod local_ba;
+pub mod local_mapping;
+pub mod map;
 pub mod optimize;
 pub mod orb;
 pub mod system;

@@ -43,6 +43,20 @@ pub struct OrbParams {
     pub fast_min_threshold: u8,
     /// Worker threads for the pyramid levels (1: the caller's thread only).
     pub threads: usize,
+    /// Whose extractor runs (ours unless built with the `kornia` feature and asked).
+    pub backend: OrbBackend,
+}
+
+/// Which ORB implementation extracts the features.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum OrbBackend {
+    /// This module's extractor.
+    #[default]
+    Own,
+    /// kornia-imgproc's `OrbDetector` (ORB-SLAM3's layout: Harris-scored
+    /// FAST, quadtree distribution), for comparison; see `kornia_orb`.
+    #[cfg(feature = "kornia")]
+    Kornia,
 }
 
 impl Default for OrbParams {
@@ -54,6 +68,7 @@ impl Default for OrbParams {
             fast_threshold: 20,
             fast_min_threshold: 7,
             threads: 2,
+            backend: OrbBackend::Own,
         }
     }
 }
@@ -298,6 +313,10 @@ impl OrbExtractor {
         img: &GrayU8,
         keep: &(dyn Fn(f32, f32) -> bool + Sync),
     ) -> (Vec<KeyPoint>, Vec<Descriptor>, usize) {
+        #[cfg(feature = "kornia")]
+        if self.params.backend == OrbBackend::Kornia {
+            return super::kornia_orb::extract(&self.params, img, keep);
+        }
         let p = &self.params;
         let f = 1.0 / p.scale_factor;
         let first = p.features as f32 * (1.0 - f) / (1.0 - f.powi(p.levels as i32));

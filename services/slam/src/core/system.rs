@@ -12,12 +12,12 @@
 //!
 //! Keyframes are decided as ORB-SLAM2 decides them (tracked points against
 //! the reference keyframe, frames since the last keyframe) and create new
-//! map points from the depth of the keypoints no map point explains.
-//! After each keyframe, local bundle adjustment can refine the newest
-//! keyframes and their points ([`super::local_ba`], synchronously, off by
-//! default: see `SlamParams::local_ba_keyframes`).
-//! Not here yet (see the issue notes): local mapping on its own thread,
-//! covisibility graph, triangulation between keyframes, keyframe culling.
+//! map points from the depth of the keypoints no map point explains; then
+//! local mapping ([`super::map`]: covisibility, point and keyframe culling,
+//! optional local bundle adjustment) runs on its own thread
+//! ([`super::local_mapping`]) while the next frame's features are
+//! extracted. Not here yet (README): triangulation between keyframes,
+//! fusion of duplicate points, loop closing.
 
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use pipeline::rng::SplitMix64;
@@ -26,14 +26,13 @@ use shared_types::{TrackCounts, TrackState};
 use std::collections::HashMap;
 
 use super::camera::{Bounds, Camera};
-use super::local_ba::{bundle_adjust, BaObservation};
+use super::local_mapping::LocalMapper;
+use super::map::{KeyFrame, KeyFrameObservation, Map, MapPoint, MappingReport};
 use super::optimize::{optimize_pose, renormalized, Observation};
 use super::orb::{hamming, Descriptor, GrayU8, KeyPoint, OrbExtractor, OrbParams};
 
 /// Tracked frames the rolling-shutter correction estimates the motion over.
 const MOTION_HISTORY: usize = 3;
-/// Shared points that make two keyframes neighbours (ORB-SLAM2's 15).
-const COVISIBILITY_MIN: u32 = 15;
 /// Neighbours of each directly covisible keyframe added to the local map.
 const LOCAL_NEIGHBOURS: usize = 10;
 /// At most this many keyframes in the local map (ORB-SLAM2's 80).
@@ -64,6 +63,10 @@ pub struct SlamParams {
     /// (u, v, ur); farther ones only by (u, v), since depth noise grows with
     /// the square of the distance (ORB-SLAM2's ThDepth: 40 baselines).
     pub close_depth_m: f64,
+    /// Local mapping on its own thread (overlapping the next frame's
+    /// feature extraction) rather than inline after each keyframe; the
+    /// results are the same, only the time moves.
+    pub mapping_thread: bool,
 }
 
 impl Default for SlamParams {
@@ -78,51 +81,9 @@ impl Default for SlamParams {
             min_inliers: 25,
             local_ba_keyframes: 0,
             close_depth_m: 3.1,
+            mapping_thread: true,
         }
     }
-}
-
-#[derive(Debug, Clone)]
-pub struct MapPoint {
-    pub position: Vector3<f64>,
-    pub descriptor: Descriptor,
-    /// Keyframes that measured it (ids, in insertion order).
-    pub observers: Vec<usize>,
-    /// Frames in which it was predicted visible / actually matched; 0
-    /// visible: culled (kept so ids stay valid, never matched again).
-    pub visible: u32,
-    pub found: u32,
-    /// Colour of the pixel it was created from (for the PLY map).
-    pub colour: [u8; 3],
-}
-
-/// A map point as one keyframe measured it (for bundle adjustment).
-#[derive(Debug, Clone, Copy)]
-pub struct KeyFrameObservation {
-    pub u: f64,
-    pub v: f64,
-    /// `u - bf / depth` when the keypoint had depth.
-    pub ur: Option<f64>,
-    /// 1 / sigma^2 of the keypoint's pyramid level.
-    pub info: f64,
-}
-
-#[derive(Debug, Clone)]
-pub struct KeyFrame {
-    /// Camera from world.
-    pub pose_cw: Isometry3<f64>,
-    /// Points this keyframe observes (ids into the map).
-    pub points: Vec<usize>,
-    /// How it measured each of them (same order as `points`).
-    pub measurements: Vec<KeyFrameObservation>,
-    /// Covisibility graph: keyframes sharing at least `COVISIBILITY_MIN`
-    /// points with this one (or the one sharing most), with the count,
-    /// most shared first.
-    pub covisible: Vec<(usize, u32)>,
-    /// Spanning tree: the keyframe it shared most points with when it was
-    /// inserted (None for the first). With the covisibility graph this is
-    /// what a loop closer corrects along (ORB-SLAM2's essential graph).
-    pub parent: Option<usize>,
 }
 
 /// One frame's features.
@@ -206,8 +167,14 @@ pub struct System {
     pub params: SlamParams,
     camera: Camera,
     extractor: OrbExtractor,
-    pub points: Vec<MapPoint>,
-    pub keyframes: Vec<KeyFrame>,
+    /// Owned here while tracking; lent to `mapper` after a keyframe until
+    /// the next frame is tracked (`mapping_pending`).
+    map: Map,
+    mapper: Option<LocalMapper>,
+    mapping_pending: bool,
+    /// The report of a job run inline (no mapping thread), applied like a
+    /// returned one.
+    inline_report: Option<MappingReport>,
     /// Camera from world of the last tracked frame, and the motion since the one before.
     last_pose: Option<Isometry3<f64>>,
     velocity: Option<Isometry3<f64>>,
@@ -223,7 +190,8 @@ pub struct System {
     lost: bool,
     /// Undistorted image extent, computed once per frame size.
     bounds: Option<((usize, usize), Bounds)>,
-    /// Local mapping time of the current frame (0 without a keyframe).
+    /// Local mapping time of the keyframe whose mapping finished while this
+    /// frame was processed (0 if none).
     mapping_ms: f64,
 }
 
@@ -233,12 +201,24 @@ fn to_ms(t: std::time::Instant) -> f64 {
 
 impl System {
     pub fn new(params: SlamParams, camera: Camera) -> Self {
+        let mapper = params
+            .mapping_thread
+            .then(|| LocalMapper::spawn(camera, params.local_ba_keyframes))
+            .and_then(|spawned| {
+                spawned
+                    .map_err(|e| {
+                        tracing::warn!("local mapping thread not started ({e}): mapping inline")
+                    })
+                    .ok()
+            });
         Self {
             extractor: OrbExtractor::new(params.orb),
             params,
             camera,
-            points: Vec::new(),
-            keyframes: Vec::new(),
+            map: Map::default(),
+            mapper,
+            mapping_pending: false,
+            inline_report: None,
             last_pose: None,
             velocity: None,
             recent: Vec::new(),
@@ -337,6 +317,9 @@ impl System {
         };
         let extract_ms = to_ms(t0);
         let t1 = std::time::Instant::now();
+        // The map comes back from local mapping (a wait, if it is not done,
+        // counts as tracking time).
+        self.settle();
 
         let mut counts = TrackCounts {
             features: frame.kps.len() as u32,
@@ -344,7 +327,7 @@ impl System {
             extract_us: (extract_ms * 1e3) as u32,
             ..Default::default()
         };
-        let initialising = self.keyframes.is_empty();
+        let initialising = self.map.keyframes.is_empty();
         let (state, mut pose_cw, inliers, matched) = if initialising {
             match self.initialise(&frame) {
                 true => (
@@ -391,14 +374,17 @@ impl System {
                     self.frames_since_keyframe += 1;
                 }
             }
-        } else if !self.keyframes.is_empty() {
+        } else if !self.map.keyframes.is_empty() {
             self.lost = true;
             self.velocity = None;
             self.recent.clear();
         }
         counts.inliers = inliers as u32;
-        counts.map_points = self.points.len() as u32;
-        counts.keyframes = self.keyframes.len() as u32;
+        counts.map_points = self.map.points.len() as u32;
+        counts.keyframes = self.map.keyframes.iter().filter(|k| !k.culled).count() as u32;
+        if keyframe_inserted {
+            self.start_mapping(self.map.keyframes.len() - 1);
+        }
         counts.mapping_us = (self.mapping_ms * 1e3) as u32;
         let next_needs_keyframe = !keyframe_inserted
             && (self.lost
@@ -414,6 +400,83 @@ impl System {
             extract_ms,
             track_ms: to_ms(t1),
         }
+    }
+
+    /// The map, once local mapping has given it back.
+    pub fn map(&mut self) -> &Map {
+        self.settle();
+        &self.map
+    }
+
+    /// Local mapping for keyframe `id`: on the mapping thread (the map goes
+    /// with it until `settle`) or, without one, here and now.
+    fn start_mapping(&mut self, id: usize) {
+        if let Some(mapper) = &self.mapper {
+            match mapper.submit(std::mem::take(&mut self.map), id) {
+                Ok(()) => {
+                    self.mapping_pending = true;
+                    return;
+                }
+                Err(map) => {
+                    tracing::error!("local mapping thread gone: mapping inline from now on");
+                    self.map = map;
+                    self.mapper = None;
+                }
+            }
+        }
+        let report = self
+            .map
+            .process_keyframe(id, &self.camera, self.params.local_ba_keyframes);
+        self.mapping_ms = report.ms;
+        self.inline_report = Some(report);
+        self.mapping_pending = true;
+    }
+
+    /// Takes the map back from local mapping (waiting for it) and applies
+    /// what it did: after local bundle adjustment tracking goes on from the
+    /// newest keyframe's adjusted pose (that keyframe is the last tracked
+    /// frame). If the mapping thread died the map is lost: tracking starts
+    /// a new one with the next frame.
+    fn settle(&mut self) {
+        if !self.mapping_pending {
+            return;
+        }
+        self.mapping_pending = false;
+        let report = match self.inline_report.take() {
+            Some(report) => report,
+            None => match self.mapper.as_ref().and_then(|m| m.collect()) {
+                Some((map, report)) => {
+                    self.map = map;
+                    self.mapping_ms = report.ms;
+                    report
+                }
+                None => {
+                    tracing::error!(
+                        "local mapping thread died: map lost, starting a new one (mapping inline)"
+                    );
+                    self.mapper = None;
+                    self.start_over();
+                    return;
+                }
+            },
+        };
+        if report.adjusted {
+            if let Some(kf) = self.map.keyframes.last() {
+                self.last_pose = Some(kf.pose_cw);
+            }
+        }
+    }
+
+    /// An empty map, nothing tracked: the next frame initialises.
+    fn start_over(&mut self) {
+        self.map = Map::default();
+        self.last_pose = None;
+        self.velocity = None;
+        self.recent.clear();
+        self.last_matched.clear();
+        self.frames_since_keyframe = 0;
+        self.reference_inliers = 0;
+        self.lost = false;
     }
 
     /// Rolling shutter: row y is exposed `readout_s * (y - h/2) / h` seconds
@@ -522,7 +585,7 @@ impl System {
                 let (u, v) = frame.un[k];
                 let sigma = self.extractor.scale(frame.kps[k].level) as f64;
                 Observation {
-                    world: self.points[p].position,
+                    world: self.map.points[p].position,
                     u,
                     v,
                     ur: frame.depth[k]
@@ -570,7 +633,7 @@ impl System {
         match self.relocalise(frame) {
             Some(start) => match self.track_from(
                 frame,
-                &(0..self.points.len()).collect::<Vec<_>>(),
+                &(0..self.map.points.len()).collect::<Vec<_>>(),
                 &start,
                 10.0,
             ) {
@@ -625,7 +688,7 @@ impl System {
                 if !inlier[j] {
                     matched[k] = None;
                 } else if pass == 1 {
-                    self.points[p].found += 1;
+                    self.map.points[p].found += 1;
                 }
             }
         }
@@ -643,17 +706,19 @@ impl System {
     fn local_points(&self) -> Vec<usize> {
         let mut votes: HashMap<usize, u32> = HashMap::new();
         for &p in &self.last_matched {
-            for &k in &self.points[p].observers {
+            for &k in &self.map.points[p].observers {
                 *votes.entry(k).or_default() += 1;
             }
         }
         let mut direct: Vec<(usize, u32)> = votes.into_iter().collect();
         direct.sort_unstable_by(|a, b| b.1.cmp(&a.1).then(b.0.cmp(&a.0)));
-        let first = self
-            .keyframes
-            .len()
-            .saturating_sub(self.params.local_keyframes);
-        let mut local: Vec<usize> = (first..self.keyframes.len()).rev().collect();
+        // The newest keyframes that were not culled.
+        let mut local: Vec<usize> = (0..self.map.keyframes.len())
+            .rev()
+            .filter(|&k| !self.map.keyframes[k].culled)
+            .take(self.params.local_keyframes)
+            .collect();
+        let first = local.last().copied().unwrap_or(0);
         local.extend(
             direct
                 .iter()
@@ -661,7 +726,7 @@ impl System {
                 .filter(|&k| k < first)
                 .take(LOCAL_NEIGHBOURS),
         );
-        let mut in_local = vec![false; self.keyframes.len()];
+        let mut in_local = vec![false; self.map.keyframes.len()];
         for &k in &local {
             in_local[k] = true;
         }
@@ -672,7 +737,7 @@ impl System {
             }
         };
         for i in 0..local.len() {
-            let kf = &self.keyframes[local[i]];
+            let kf = &self.map.keyframes[local[i]];
             for &(n, _) in kf.covisible.iter().take(LOCAL_NEIGHBOURS) {
                 add(n, &mut local);
             }
@@ -680,11 +745,11 @@ impl System {
                 add(parent, &mut local);
             }
         }
-        let mut taken = vec![false; self.points.len()];
+        let mut taken = vec![false; self.map.points.len()];
         let mut points = Vec::new();
         for &k in &local {
-            for &p in &self.keyframes[k].points {
-                if !taken[p] && self.points[p].visible > 0 {
+            for &p in &self.map.keyframes[k].points {
+                if !taken[p] && self.map.points[p].visible > 0 {
                     taken[p] = true;
                     points.push(p);
                 }
@@ -711,7 +776,7 @@ impl System {
         let mut best: Vec<Option<(usize, u32)>> = vec![None; frame.kps.len()];
         let mut near = Vec::new();
         for &p in local {
-            let pc = pose * Point3::from(self.points[p].position);
+            let pc = pose * Point3::from(self.map.points[p].position);
             if pc.z < self.params.min_depth_m {
                 continue;
             }
@@ -727,7 +792,7 @@ impl System {
                 continue;
             }
             if count_visible {
-                self.points[p].visible += 1;
+                self.map.points[p].visible += 1;
             }
             let mut cand: Option<(usize, u32)> = None;
             for &k in &near {
@@ -736,7 +801,7 @@ impl System {
                 if (ku - u).powi(2) + (kv - v).powi(2) > r * r {
                     continue;
                 }
-                let d = hamming(&self.points[p].descriptor, &frame.descs[k]);
+                let d = hamming(&self.map.points[p].descriptor, &frame.descs[k]);
                 if d <= MAX_DISTANCE && cand.is_none_or(|c| d < c.1) {
                     cand = Some((k, d));
                 }
@@ -780,7 +845,7 @@ impl System {
         matched: &[Option<usize>],
         inliers: usize,
     ) {
-        let id = self.keyframes.len();
+        let id = self.map.keyframes.len();
         let pose_wc = pose_cw.inverse();
         let mut observed = Vec::new();
         let mut measurements = Vec::new();
@@ -798,13 +863,13 @@ impl System {
         };
         for (k, m) in matched.iter().enumerate() {
             if let Some(p) = m {
-                self.points[*p].observers.push(id);
+                self.map.points[*p].observers.push(id);
                 observed.push(*p);
                 measurements.push(measure(k));
             } else if let Some(d) = frame.depth[k] {
                 let (u, v) = frame.un[k];
                 let world = pose_wc * Point3::from(self.camera.unproject(u, v, d));
-                self.points.push(MapPoint {
+                self.map.points.push(MapPoint {
                     position: world.coords,
                     descriptor: frame.descs[k],
                     observers: vec![id],
@@ -812,177 +877,21 @@ impl System {
                     found: 1,
                     colour: frame.colours[k],
                 });
-                observed.push(self.points.len() - 1);
+                observed.push(self.map.points.len() - 1);
                 measurements.push(measure(k));
             }
         }
-        let (covisible, parent) = self.covisibility_of(id, &observed);
-        for &(other, n) in &covisible {
-            let list = &mut self.keyframes[other].covisible;
-            list.push((id, n));
-            list.sort_unstable_by_key(|e| std::cmp::Reverse(e.1));
-        }
-        self.keyframes.push(KeyFrame {
+        self.map.keyframes.push(KeyFrame {
             pose_cw: *pose_cw,
             points: observed,
             measurements,
-            covisible,
-            parent,
+            // Local mapping connects it.
+            covisible: Vec::new(),
+            parent: None,
+            culled: false,
         });
-        if self.params.local_ba_keyframes > 1 {
-            let t = std::time::Instant::now();
-            self.local_bundle_adjustment();
-            self.mapping_ms = to_ms(t);
-        }
         self.frames_since_keyframe = 0;
         self.reference_inliers = inliers.max(1);
-        // Recent-point culling: points seen in under a quarter of the frames
-        // that should have seen them stop being matched.
-        for p in &mut self.points {
-            if p.visible >= 20 && (p.found as f64) < 0.25 * p.visible as f64 {
-                p.visible = 0;
-            }
-        }
-    }
-
-    /// Edges of keyframe `id` (observing `observed`) in the covisibility
-    /// graph, most shared first, and its spanning-tree parent.
-    fn covisibility_of(&self, id: usize, observed: &[usize]) -> (Vec<(usize, u32)>, Option<usize>) {
-        let mut shared: HashMap<usize, u32> = HashMap::new();
-        for &p in observed {
-            for &k in &self.points[p].observers {
-                if k != id {
-                    *shared.entry(k).or_default() += 1;
-                }
-            }
-        }
-        let mut all: Vec<(usize, u32)> = shared.into_iter().collect();
-        all.sort_unstable_by(|a, b| b.1.cmp(&a.1).then(b.0.cmp(&a.0)));
-        let parent = all.first().map(|&(k, _)| k);
-        let strong = all.iter().take_while(|e| e.1 >= COVISIBILITY_MIN).count();
-        // A keyframe with no strong neighbour keeps its best one.
-        all.truncate(strong.max(1));
-        (all, parent)
-    }
-
-    /// Local bundle adjustment after a keyframe insertion: the newest
-    /// `local_ba_keyframes` keyframes and every point they see, against all
-    /// observations of those points; older keyframes seeing them are held
-    /// fixed (and the first keyframe always is: it defines the world).
-    /// Outlier observations are removed from their keyframe.
-    fn local_bundle_adjustment(&mut self) {
-        let n = self.keyframes.len();
-        let first_local = n.saturating_sub(self.params.local_ba_keyframes);
-        let mut point_slot: HashMap<usize, usize> = HashMap::new();
-        let mut point_ids: Vec<usize> = Vec::new();
-        for kf in &self.keyframes[first_local..] {
-            for &p in &kf.points {
-                if self.points[p].visible > 0 && !point_slot.contains_key(&p) {
-                    point_slot.insert(p, point_ids.len());
-                    point_ids.push(p);
-                }
-            }
-        }
-        // Every keyframe observing a local point takes part.
-        let mut kf_slot: HashMap<usize, usize> = HashMap::new();
-        let mut kf_ids: Vec<usize> = Vec::new();
-        let mut obs: Vec<BaObservation> = Vec::new();
-        let mut obs_at: Vec<(usize, usize)> = Vec::new();
-        let mut seen_by = vec![0u32; point_ids.len()];
-        let mut with_depth = vec![false; point_ids.len()];
-        for (kid, kf) in self.keyframes.iter().enumerate() {
-            for (j, (&p, m)) in kf.points.iter().zip(&kf.measurements).enumerate() {
-                let Some(&slot) = point_slot.get(&p) else {
-                    continue;
-                };
-                let pose = *kf_slot.entry(kid).or_insert_with(|| {
-                    kf_ids.push(kid);
-                    kf_ids.len() - 1
-                });
-                seen_by[slot] += 1;
-                with_depth[slot] |= m.ur.is_some();
-                obs.push(BaObservation {
-                    pose,
-                    point: slot,
-                    u: m.u,
-                    v: m.v,
-                    ur: m.ur,
-                    info: m.info,
-                });
-                obs_at.push((kid, j));
-            }
-        }
-        // A point seen once constrains no pose, and one never measured
-        // with (close) depth has only parallax to fix its distance, which
-        // between neighbouring keyframes is too little: leave both out.
-        let adjusted: Vec<bool> = seen_by
-            .iter()
-            .zip(&with_depth)
-            .map(|(&n, &d)| n >= 2 && d)
-            .collect();
-        let keep: Vec<bool> = obs.iter().map(|o| adjusted[o.point]).collect();
-        let (obs, obs_at): (Vec<_>, Vec<_>) = obs
-            .into_iter()
-            .zip(obs_at)
-            .zip(&keep)
-            .filter(|(_, &k)| k)
-            .map(|(pair, _)| pair)
-            .unzip();
-        if obs.is_empty() {
-            return;
-        }
-        let fixed: Vec<bool> = kf_ids.iter().map(|&k| k < first_local || k == 0).collect();
-        if fixed.iter().all(|&f| !f) || fixed.iter().all(|&f| f) {
-            return;
-        }
-        let mut poses: Vec<Isometry3<f64>> =
-            kf_ids.iter().map(|&k| self.keyframes[k].pose_cw).collect();
-        let mut positions: Vec<Vector3<f64>> =
-            point_ids.iter().map(|&p| self.points[p].position).collect();
-        let inlier = bundle_adjust(&self.camera, &mut poses, &fixed, &mut positions, &obs);
-        for (slot, &p) in point_ids.iter().enumerate() {
-            if adjusted[slot] {
-                self.points[p].position = positions[slot];
-            }
-        }
-        // Points left out of the adjustment move rigidly with the newest
-        // keyframe that measured them, so they stay where that keyframe saw
-        // them (else the adjusted pose and its own points would disagree).
-        let mut moved = adjusted.clone();
-        for (i, &k) in kf_ids.iter().enumerate().rev() {
-            if fixed[i] {
-                continue;
-            }
-            let correction = poses[i].inverse() * self.keyframes[k].pose_cw;
-            for &p in &self.keyframes[k].points {
-                if let Some(&slot) = point_slot.get(&p) {
-                    if !moved[slot] {
-                        moved[slot] = true;
-                        self.points[p].position =
-                            (correction * Point3::from(self.points[p].position)).coords;
-                    }
-                }
-            }
-            self.keyframes[k].pose_cw = poses[i];
-        }
-        // Drop outlier observations (highest index first per keyframe).
-        let mut outliers: Vec<(usize, usize)> = obs_at
-            .iter()
-            .zip(&inlier)
-            .filter(|(_, &ok)| !ok)
-            .map(|(&at, _)| at)
-            .collect();
-        outliers.sort_unstable_by(|a, b| b.cmp(a));
-        for (kid, j) in outliers {
-            let p = self.keyframes[kid].points.swap_remove(j);
-            self.keyframes[kid].measurements.swap_remove(j);
-            self.points[p].observers.retain(|&k| k != kid);
-        }
-        // The newest keyframe is the current frame: tracking continues from
-        // its adjusted pose.
-        if let Some(kf) = self.keyframes.last() {
-            self.last_pose = Some(kf.pose_cw);
-        }
     }
 
     /// A pose (camera from world) for a lost frame: descriptor matches to
@@ -991,13 +900,20 @@ impl System {
         let cam_points: Vec<Option<Vector3<f64>>> = (0..frame.kps.len())
             .map(|k| frame.depth[k].map(|d| self.camera.unproject(frame.un[k].0, frame.un[k].1, d)))
             .collect();
-        for kf in self.keyframes.iter().rev().take(40) {
+        for kf in self
+            .map
+            .keyframes
+            .iter()
+            .rev()
+            .filter(|k| !k.culled)
+            .take(40)
+        {
             let mut pairs = Vec::new();
             for (k, d) in frame.descs.iter().enumerate() {
                 let Some(c) = cam_points[k] else { continue };
                 let (mut b1, mut b2, mut bp) = (u32::MAX, u32::MAX, 0);
                 for &p in &kf.points {
-                    let h = hamming(d, &self.points[p].descriptor);
+                    let h = hamming(d, &self.map.points[p].descriptor);
                     if h < b1 {
                         b2 = b1;
                         b1 = h;
@@ -1007,7 +923,7 @@ impl System {
                     }
                 }
                 if b1 <= 50 && (b1 as f64) < 0.8 * b2 as f64 {
-                    pairs.push((self.points[bp].position, c));
+                    pairs.push((self.map.points[bp].position, c));
                 }
             }
             if pairs.len() < 20 {
@@ -1026,9 +942,15 @@ impl System {
         None
     }
 
-    /// Trajectory of keyframes: (index, world-from-camera).
-    pub fn keyframe_poses(&self) -> Vec<Isometry3<f64>> {
-        self.keyframes.iter().map(|k| k.pose_cw.inverse()).collect()
+    /// World-from-camera poses of the keyframes in the map (culled ones
+    /// left out).
+    pub fn keyframe_poses(&mut self) -> Vec<Isometry3<f64>> {
+        self.map()
+            .keyframes
+            .iter()
+            .filter(|k| !k.culled)
+            .map(|k| k.pose_cw.inverse())
+            .collect()
     }
 }
 

@@ -7,6 +7,7 @@
 //! - [`map`]: keyframes, points, covisibility; what local mapping does to them.
 //! - [`local_mapping`]: the thread local mapping runs on.
 //! - [`local_ba`]: local bundle adjustment (keyframe poses and points).
+//! - [`pnp`]: pose from 2D-3D matches (relocalisation without depth).
 //! - [`system`]: tracking, keyframes, map, relocalisation.
 
 pub mod camera;
@@ -17,4 +18,5 @@ pub mod local_mapping;
 pub mod map;
 pub mod optimize;
 pub mod orb;
+pub mod pnp;
 pub mod system;

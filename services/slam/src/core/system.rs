@@ -8,7 +8,8 @@
 //! a wider search; then the local map (points of the recent keyframes) is
 //! matched by projection and the pose optimised again. A lost frame triggers
 //! relocalisation: descriptor matches against recent keyframes, 3D-3D RANSAC
-//! on the depth of both sides, then pose optimisation.
+//! on the depth of both sides (PnP RANSAC where the frame lacks depth),
+//! then pose optimisation.
 //!
 //! Keyframes are decided as ORB-SLAM2 decides them (tracked points against
 //! the reference keyframe, frames since the last keyframe) and create new
@@ -30,6 +31,7 @@ use super::local_mapping::LocalMapper;
 use super::map::{KeyFrame, KeyFrameObservation, Map, MapPoint, MappingReport};
 use super::optimize::{optimize_pose, renormalized, Observation};
 use super::orb::{hamming, Descriptor, GrayU8, KeyPoint, OrbExtractor, OrbParams};
+use super::pnp::{pnp_ransac, PnpMatch};
 
 /// Tracked frames the rolling-shutter correction estimates the motion over.
 const MOTION_HISTORY: usize = 3;
@@ -895,11 +897,22 @@ impl System {
     }
 
     /// A pose (camera from world) for a lost frame: descriptor matches to
-    /// the points of each keyframe (newest first), 3D-3D RANSAC.
+    /// the points of each keyframe (newest first), then 3D-3D RANSAC on the
+    /// depth of both sides, or, where too few matched keypoints have depth
+    /// (a depth camera blinded by sunlight, glass, a too-near scene), PnP
+    /// RANSAC on their pixels.
     fn relocalise(&self, frame: &Frame) -> Option<Isometry3<f64>> {
+        const MIN_MATCHES: usize = 20;
         let cam_points: Vec<Option<Vector3<f64>>> = (0..frame.kps.len())
             .map(|k| frame.depth[k].map(|d| self.camera.unproject(frame.un[k].0, frame.un[k].1, d)))
             .collect();
+        let finite = |p: &Isometry3<f64>| {
+            p.translation
+                .vector
+                .iter()
+                .chain(p.rotation.coords.iter())
+                .all(|x| x.is_finite())
+        };
         for kf in self
             .map
             .keyframes
@@ -909,8 +922,8 @@ impl System {
             .take(40)
         {
             let mut pairs = Vec::new();
+            let mut pixels = Vec::new();
             for (k, d) in frame.descs.iter().enumerate() {
-                let Some(c) = cam_points[k] else { continue };
                 let (mut b1, mut b2, mut bp) = (u32::MAX, u32::MAX, 0);
                 for &p in &kf.points {
                     let h = hamming(d, &self.map.points[p].descriptor);
@@ -923,19 +936,37 @@ impl System {
                     }
                 }
                 if b1 <= 50 && (b1 as f64) < 0.8 * b2 as f64 {
-                    pairs.push((self.map.points[bp].position, c));
+                    let world = self.map.points[bp].position;
+                    match cam_points[k] {
+                        Some(c) => pairs.push((world, c)),
+                        None => {
+                            let sigma = self.extractor.scale(frame.kps[k].level) as f64;
+                            pixels.push(PnpMatch {
+                                world,
+                                u: frame.un[k].0,
+                                v: frame.un[k].1,
+                                info: 1.0 / (sigma * sigma),
+                            });
+                        }
+                    }
                 }
             }
-            if pairs.len() < 20 {
-                continue;
-            }
-            if let Some(pose) = ransac_rigid(&pairs, 0.05, 200).filter(|p| {
-                p.translation
-                    .vector
-                    .iter()
-                    .chain(p.rotation.coords.iter())
-                    .all(|x| x.is_finite())
-            }) {
+            let pose = if pairs.len() >= MIN_MATCHES {
+                ransac_rigid(&pairs, 0.05, 200)
+            } else {
+                // The keypoints with depth count as pixels too.
+                pixels.extend(pairs.iter().map(|(world, c)| {
+                    let (u, v) = self.camera.project(c);
+                    PnpMatch {
+                        world: *world,
+                        u,
+                        v,
+                        info: 1.0,
+                    }
+                }));
+                pnp_ransac(&self.camera, &pixels, 300, MIN_MATCHES).map(|(pose, _)| pose)
+            };
+            if let Some(pose) = pose.filter(finite) {
                 return Some(pose);
             }
         }

@@ -92,6 +92,15 @@ fn chi2(r: &Vector3<f64>, o: &Observation) -> f64 {
     chi2_error(r, o.ur.is_some(), o.info)
 }
 
+/// No NaN or infinity in the pose (what a degenerate solve leaves).
+pub(crate) fn is_finite_pose(pose: &Isometry3<f64>) -> bool {
+    pose.translation
+        .vector
+        .iter()
+        .chain(pose.rotation.coords.iter())
+        .all(|x| x.is_finite())
+}
+
 /// Optimises `pose` (camera from world); returns the pose and the inlier
 /// flag of every observation. Fewer than 3 inliers leave the pose unchanged.
 pub fn optimize_pose(

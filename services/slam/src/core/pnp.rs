@@ -15,7 +15,7 @@ use nalgebra::{
 use pipeline::rng::SplitMix64;
 
 use super::camera::Camera;
-use super::optimize::{optimize_pose, Observation};
+use super::optimize::{is_finite_pose, optimize_pose, Observation};
 
 /// A map point matched to an (undistorted) keypoint.
 #[derive(Debug, Clone, Copy)]
@@ -87,13 +87,7 @@ pub fn pnp_ransac(
         pose = refined;
         n = inlier.iter().filter(|&&b| b).count();
     }
-    let finite = pose
-        .translation
-        .vector
-        .iter()
-        .chain(pose.rotation.coords.iter())
-        .all(|x| x.is_finite());
-    (finite && n >= min_inliers).then_some((pose, n))
+    (is_finite_pose(&pose) && n >= min_inliers).then_some((pose, n))
 }
 
 fn inliers<'a>(

@@ -29,7 +29,7 @@ use std::collections::HashMap;
 use super::camera::{Bounds, Camera};
 use super::local_mapping::LocalMapper;
 use super::map::{KeyFrame, KeyFrameObservation, Map, MapPoint, MappingReport};
-use super::optimize::{optimize_pose, renormalized, Observation};
+use super::optimize::{is_finite_pose, optimize_pose, renormalized, Observation};
 use super::orb::{hamming, Descriptor, GrayU8, KeyPoint, OrbExtractor, OrbParams};
 use super::pnp::{pnp_ransac, PnpMatch};
 
@@ -571,12 +571,7 @@ impl System {
             .collect();
         let (pose, inlier) = optimize_pose(&self.camera, pose_cw, &self.observations(frame, &ids));
         let n = inlier.iter().filter(|&&b| b).count();
-        let finite = pose
-            .translation
-            .vector
-            .iter()
-            .chain(pose.rotation.coords.iter())
-            .all(|x| x.is_finite());
+        let finite = is_finite_pose(&pose);
         (n >= self.params.min_inliers && finite).then_some(pose)
     }
 
@@ -676,12 +671,7 @@ impl System {
             let obs = self.observations(frame, &ids);
             let (optimised, inlier) = optimize_pose(&self.camera, &pose, &obs);
             n = inlier.iter().filter(|&&b| b).count();
-            let finite = optimised
-                .translation
-                .vector
-                .iter()
-                .chain(optimised.rotation.coords.iter())
-                .all(|x| x.is_finite());
+            let finite = is_finite_pose(&optimised);
             if n < self.params.min_inliers || !finite {
                 return None;
             }
@@ -906,13 +896,6 @@ impl System {
         let cam_points: Vec<Option<Vector3<f64>>> = (0..frame.kps.len())
             .map(|k| frame.depth[k].map(|d| self.camera.unproject(frame.un[k].0, frame.un[k].1, d)))
             .collect();
-        let finite = |p: &Isometry3<f64>| {
-            p.translation
-                .vector
-                .iter()
-                .chain(p.rotation.coords.iter())
-                .all(|x| x.is_finite())
-        };
         for kf in self
             .map
             .keyframes
@@ -966,7 +949,7 @@ impl System {
                 }));
                 pnp_ransac(&self.camera, &pixels, 300, MIN_MATCHES).map(|(pose, _)| pose)
             };
-            if let Some(pose) = pose.filter(finite) {
+            if let Some(pose) = pose.filter(is_finite_pose) {
                 return Some(pose);
             }
         }

@@ -124,18 +124,7 @@ fn ate_and_rpe_agree_with_evo() {
     let est = write_estimate(&dir);
     let (gt_s, est_s) = (gt.to_str().unwrap(), est.to_str().unwrap());
 
-    let ours = Command::new(dynslam())
-        .args([
-            "eval", "--gt", gt_s, "--est", est_s, "--align", "se3", "--json",
-        ])
-        .output()
-        .unwrap();
-    assert!(
-        ours.status.success(),
-        "{}",
-        String::from_utf8_lossy(&ours.stderr)
-    );
-    let ours: serde_json::Value = serde_json::from_slice(&ours.stdout).unwrap();
+    let ours = eval_json(&gt, &est, &["--align", "se3"]);
 
     let ape = evo_stats(
         "evo_ape",

@@ -68,21 +68,11 @@ fn full_run_on_fr1_rpy_meets_the_ate_target() {
     assert_eq!(rows.len(), 300);
     let tracked = rows.iter().filter(|r| r["state"] == "ok").count();
     assert!(tracked >= 297, "{tracked} of 300 tracked");
-    let eval = std::process::Command::new(dynslam())
-        .arg("eval")
-        .arg("--gt")
-        .arg(shared_tum().join("groundtruth.txt"))
-        .arg("--est")
-        .arg(r.run_dir.join("trajectory.txt"))
-        .arg("--json")
-        .output()
-        .unwrap();
-    assert!(
-        eval.status.success(),
-        "{}",
-        String::from_utf8_lossy(&eval.stderr)
+    let s = eval_json(
+        &shared_tum().join("groundtruth.txt"),
+        &r.run_dir.join("trajectory.txt"),
+        &[],
     );
-    let s: serde_json::Value = serde_json::from_slice(&eval.stdout).unwrap();
     let ate = s["ate_rmse_m"].as_f64().unwrap();
     eprintln!("fr1_rpy full run: {tracked}/300 tracked, ATE {ate:.4} m");
     assert!(s["pairs"].as_u64().unwrap() >= 297, "{s}");

@@ -24,6 +24,27 @@ pub fn dynslam() -> PathBuf {
     bin_dir().join("dynslam")
 }
 
+/// `dynslam eval --gt GT --est EST --json [extra]`: its JSON summary
+/// (the command must succeed).
+pub fn eval_json(gt: &Path, est: &Path, extra: &[&str]) -> serde_json::Value {
+    let out = Command::new(dynslam())
+        .arg("eval")
+        .arg("--gt")
+        .arg(gt)
+        .arg("--est")
+        .arg(est)
+        .arg("--json")
+        .args(extra)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
 pub fn shared_tum() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../shared/data/tum/rgbd_dataset_freiburg1_rpy_first300")

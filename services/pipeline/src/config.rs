@@ -41,9 +41,15 @@ pub struct CameraConfig {
     /// OpenCV order: k1, k2, p1, p2, k3.
     pub distortion: [f64; 5],
     /// Rolling shutter: seconds from the first image row's exposure to the
-    /// last row's (0: global shutter). Tracking moves every keypoint to the
-    /// middle row's instant with the motion model's rotation.
+    /// last row's (0: global shutter), within `READOUT_S`. Tracking moves
+    /// every keypoint to the middle row's instant with the motion model
+    /// (rotation, and translation for keypoints with depth).
     pub readout_s: f64,
+}
+
+impl CameraConfig {
+    /// Accepted rolling-shutter readout times (seconds).
+    pub const READOUT_S: std::ops::Range<f64> = 0.0..0.2;
 }
 
 impl Default for CameraConfig {
@@ -347,7 +353,7 @@ impl PipelineConfig {
                 "key `camera`: fx and fy must be positive, cx, cy and distortion finite".into(),
             );
         }
-        if !(0.0..0.2).contains(&c.readout_s) {
+        if !CameraConfig::READOUT_S.contains(&c.readout_s) {
             return Err(format!(
                 "key `camera.readout_s`: {} is not a rolling-shutter readout time in seconds (0 <= s < 0.2; 0 for a global shutter)",
                 c.readout_s

@@ -14,7 +14,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use camera_reader::source::{tum_folder, FrameEntry, MaskList};
 use clap::Parser;
-use pipeline::config::PipelineConfig;
+use pipeline::config::{CameraConfig, PipelineConfig};
 use pipeline::progress::Progress;
 use pipeline::stats::percentile;
 use shared_types::TrackState;
@@ -86,7 +86,7 @@ fn main() -> Result<()> {
     let mut camera = Camera::from_config(&cfg.camera, cfg.source.depth_scale as f64);
     if let Some(r) = args.readout {
         anyhow::ensure!(
-            (0.0..0.2).contains(&r),
+            CameraConfig::READOUT_S.contains(&r),
             "--readout {r}: not a readout time in seconds (0 <= s < 0.2)"
         );
         camera.readout_s = r;
@@ -201,13 +201,13 @@ fn main() -> Result<()> {
         );
     }
     let map = system.map();
-    let culled = map.keyframes.iter().filter(|k| k.culled).count();
+    let live = map.live_keyframes().count();
     println!(
-        "tracked {tracked}/{} frames ({:.1} %), {} keyframes ({} inserted, {culled} culled), {} map points ({} in use)",
+        "tracked {tracked}/{} frames ({:.1} %), {live} keyframes ({} inserted, {} culled), {} map points ({} in use)",
         frames.len(),
         100.0 * tracked as f64 / frames.len().max(1) as f64,
-        map.keyframes.len() - culled,
         map.keyframes.len(),
+        map.keyframes.len() - live,
         map.points.len(),
         map.points.iter().filter(|p| p.visible > 0).count()
     );

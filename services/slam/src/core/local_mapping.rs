@@ -14,6 +14,7 @@ use std::thread::JoinHandle;
 
 use super::camera::Camera;
 use super::map::{Map, MappingReport};
+use super::system::SlamParams;
 
 struct Job {
     map: Map,
@@ -28,16 +29,15 @@ pub struct LocalMapper {
 }
 
 impl LocalMapper {
-    /// Starts the thread (named `local-mapping`). `ba_keyframes`: see
-    /// `SlamParams::local_ba_keyframes`.
-    pub fn spawn(camera: Camera, ba_keyframes: usize) -> std::io::Result<Self> {
+    /// Starts the thread (named `local-mapping`), which maps with `params`.
+    pub fn spawn(camera: Camera, params: SlamParams) -> std::io::Result<Self> {
         let (jobs, inbox) = channel::<Job>();
         let (outbox, done) = channel();
         let worker = std::thread::Builder::new()
             .name("local-mapping".into())
             .spawn(move || {
                 for Job { mut map, keyframe } in inbox {
-                    let report = map.process_keyframe(keyframe, &camera, ba_keyframes);
+                    let report = map.process_keyframe(keyframe, &camera, &params);
                     if outbox.send((map, report)).is_err() {
                         break;
                     }

@@ -12,6 +12,7 @@ use nalgebra::{Isometry3, Point3, Vector3};
 use super::camera::Camera;
 use super::local_ba::{bundle_adjust, BaObservation};
 use super::orb::Descriptor;
+use super::system::SlamParams;
 
 /// Shared points that make two keyframes neighbours (ORB-SLAM2's 15).
 pub const COVISIBILITY_MIN: u32 = 15;
@@ -36,8 +37,6 @@ pub struct MappingReport {
     pub ms: f64,
     /// Local bundle adjustment moved keyframe poses.
     pub adjusted: bool,
-    pub culled_keyframes: usize,
-    pub culled_points: usize,
 }
 
 #[derive(Debug, Clone)]
@@ -87,33 +86,38 @@ pub struct KeyFrame {
 }
 
 impl Map {
+    /// The keyframes keyframe culling left in the map, with their ids,
+    /// oldest first.
+    pub fn live_keyframes(&self) -> impl DoubleEndedIterator<Item = (usize, &KeyFrame)> {
+        self.keyframes.iter().enumerate().filter(|(_, k)| !k.culled)
+    }
+
     /// Local mapping after keyframe `id` was inserted (its points and
     /// observations in place): covisibility edges and spanning-tree parent,
     /// recent-point culling, local bundle adjustment over the newest
-    /// `ba_keyframes` keyframes (below 2: off), keyframe culling among its
-    /// neighbours.
+    /// `params.local_ba_keyframes` keyframes (below 2: off), keyframe culling
+    /// among its neighbours.
     pub fn process_keyframe(
         &mut self,
         id: usize,
         camera: &Camera,
-        ba_keyframes: usize,
+        params: &SlamParams,
     ) -> MappingReport {
         let t = std::time::Instant::now();
         self.connect(id);
-        let culled_points = self.cull_points();
-        let adjusted = ba_keyframes > 1 && self.local_bundle_adjustment(camera, ba_keyframes);
-        let culled_keyframes = self.cull_keyframes(id);
+        self.cull_points();
+        let ba = params.local_ba_keyframes;
+        let adjusted = ba > 1 && self.local_bundle_adjustment(camera, ba);
+        self.cull_keyframes(id, params.orb.scale_factor as f64);
         MappingReport {
             ms: t.elapsed().as_secs_f64() * 1e3,
             adjusted,
-            culled_keyframes,
-            culled_points,
         }
     }
 
     /// Puts keyframe `id` into the covisibility graph and the spanning tree.
     fn connect(&mut self, id: usize) {
-        let (covisible, parent) = self.covisibility_of(id, &self.keyframes[id].points);
+        let (covisible, parent) = self.covisibility_of(id);
         for &(other, n) in &covisible {
             let list = &mut self.keyframes[other].covisible;
             list.push((id, n));
@@ -125,24 +129,22 @@ impl Map {
     }
 
     /// Recent-point culling: points seen in under a quarter of the frames
-    /// that should have seen them stop being matched. Returns how many.
-    fn cull_points(&mut self) -> usize {
-        let mut culled = 0;
+    /// that should have seen them stop being matched.
+    fn cull_points(&mut self) {
         for p in &mut self.points {
             if p.visible >= 20 && (p.found as f64) < 0.25 * p.visible as f64 {
                 p.visible = 0;
-                culled += 1;
             }
         }
-        culled
     }
 
     /// Keyframe culling (ORB-SLAM2's rule) among the neighbours of `id`:
     /// a keyframe most of whose close points (those with depth) are
     /// measured by at least three other keyframes at the same or a finer
-    /// pyramid level adds nothing to the map and goes. The first keyframe
-    /// (it defines the world) and `id` itself stay. Returns how many went.
-    fn cull_keyframes(&mut self, id: usize) -> usize {
+    /// pyramid level (`scale_factor`: the pyramid's step) adds nothing to
+    /// the map and goes. The first keyframe (it defines the world) and `id`
+    /// itself stay.
+    fn cull_keyframes(&mut self, id: usize, scale_factor: f64) {
         let candidates: Vec<usize> = self.keyframes[id]
             .covisible
             .iter()
@@ -152,7 +154,6 @@ impl Map {
         // How each keyframe measured each point (info = 1 / sigma^2 of its
         // level), built for the keyframes consulted.
         let mut measured: HashMap<usize, HashMap<usize, f64>> = HashMap::new();
-        let mut culled = 0;
         for k in candidates {
             if self.keyframes[k].culled {
                 continue;
@@ -184,8 +185,8 @@ impl Map {
                         .get(&p)
                         .copied()
                         .unwrap_or(0.0);
-                    // Same or finer level: sigma at most one level (x1.2) larger.
-                    if info * 1.2 * 1.2 >= m.info * (1.0 - 1e-9) {
+                    // Same or finer level: sigma at most one level larger.
+                    if info * scale_factor * scale_factor >= m.info * (1.0 - 1e-9) {
                         others += 1;
                         if others >= REDUNDANT_OBSERVERS {
                             break;
@@ -199,10 +200,8 @@ impl Map {
             if close > 0 && redundant as f64 > REDUNDANT_SHARE * close as f64 {
                 self.cull_keyframe(k);
                 measured.remove(&k);
-                culled += 1;
             }
         }
-        culled
     }
 
     /// Removes keyframe `k` from the map: its observations leave its points
@@ -233,11 +232,12 @@ impl Map {
         }
     }
 
-    /// Edges of keyframe `id` (observing `observed`) in the covisibility
-    /// graph, most shared first, and its spanning-tree parent.
-    fn covisibility_of(&self, id: usize, observed: &[usize]) -> (Vec<(usize, u32)>, Option<usize>) {
+    /// Edges of keyframe `id` in the covisibility graph (from the
+    /// observers of its points), most shared first, and its spanning-tree
+    /// parent.
+    fn covisibility_of(&self, id: usize) -> (Vec<(usize, u32)>, Option<usize>) {
         let mut shared: HashMap<usize, u32> = HashMap::new();
-        for &p in observed {
+        for &p in &self.keyframes[id].points {
             for &k in &self.points[p].observers {
                 if k != id {
                     *shared.entry(k).or_default() += 1;

@@ -170,13 +170,10 @@ pub struct System {
     camera: Camera,
     extractor: OrbExtractor,
     /// Owned here while tracking; lent to `mapper` after a keyframe until
-    /// the next frame is tracked (`mapping_pending`).
+    /// the next frame is tracked (see `mapping`).
     map: Map,
     mapper: Option<LocalMapper>,
-    mapping_pending: bool,
-    /// The report of a job run inline (no mapping thread), applied like a
-    /// returned one.
-    inline_report: Option<MappingReport>,
+    mapping: Mapping,
     /// Camera from world of the last tracked frame, and the motion since the one before.
     last_pose: Option<Isometry3<f64>>,
     velocity: Option<Isometry3<f64>>,
@@ -197,6 +194,16 @@ pub struct System {
     mapping_ms: f64,
 }
 
+/// Where the last keyframe's local mapping stands.
+enum Mapping {
+    /// Nothing to take back.
+    Idle,
+    /// The map is on the mapping thread.
+    OnThread,
+    /// Done inline (no mapping thread); its report still to be applied.
+    Inline(MappingReport),
+}
+
 fn to_ms(t: std::time::Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
 }
@@ -205,7 +212,7 @@ impl System {
     pub fn new(params: SlamParams, camera: Camera) -> Self {
         let mapper = params
             .mapping_thread
-            .then(|| LocalMapper::spawn(camera, params.local_ba_keyframes))
+            .then(|| LocalMapper::spawn(camera, params))
             .and_then(|spawned| {
                 spawned
                     .map_err(|e| {
@@ -219,8 +226,7 @@ impl System {
             camera,
             map: Map::default(),
             mapper,
-            mapping_pending: false,
-            inline_report: None,
+            mapping: Mapping::Idle,
             last_pose: None,
             velocity: None,
             recent: Vec::new(),
@@ -383,7 +389,7 @@ impl System {
         }
         counts.inliers = inliers as u32;
         counts.map_points = self.map.points.len() as u32;
-        counts.keyframes = self.map.keyframes.iter().filter(|k| !k.culled).count() as u32;
+        counts.keyframes = self.map.live_keyframes().count() as u32;
         if keyframe_inserted {
             self.start_mapping(self.map.keyframes.len() - 1);
         }
@@ -416,7 +422,7 @@ impl System {
         if let Some(mapper) = &self.mapper {
             match mapper.submit(std::mem::take(&mut self.map), id) {
                 Ok(()) => {
-                    self.mapping_pending = true;
+                    self.mapping = Mapping::OnThread;
                     return;
                 }
                 Err(map) => {
@@ -426,12 +432,9 @@ impl System {
                 }
             }
         }
-        let report = self
-            .map
-            .process_keyframe(id, &self.camera, self.params.local_ba_keyframes);
+        let report = self.map.process_keyframe(id, &self.camera, &self.params);
         self.mapping_ms = report.ms;
-        self.inline_report = Some(report);
-        self.mapping_pending = true;
+        self.mapping = Mapping::Inline(report);
     }
 
     /// Takes the map back from local mapping (waiting for it) and applies
@@ -440,13 +443,10 @@ impl System {
     /// frame). If the mapping thread died the map is lost: tracking starts
     /// a new one with the next frame.
     fn settle(&mut self) {
-        if !self.mapping_pending {
-            return;
-        }
-        self.mapping_pending = false;
-        let report = match self.inline_report.take() {
-            Some(report) => report,
-            None => match self.mapper.as_ref().and_then(|m| m.collect()) {
+        let report = match std::mem::replace(&mut self.mapping, Mapping::Idle) {
+            Mapping::Idle => return,
+            Mapping::Inline(report) => report,
+            Mapping::OnThread => match self.mapper.as_ref().and_then(|m| m.collect()) {
                 Some((map, report)) => {
                     self.map = map;
                     self.mapping_ms = report.ms;
@@ -575,20 +575,33 @@ impl System {
         (n >= self.params.min_inliers && finite).then_some(pose)
     }
 
+    /// How keypoint `k` measures a point: its pixel, the virtual right
+    /// pixel when its depth is close enough to trust, and the information
+    /// (1 / sigma^2) of its pyramid level.
+    fn measure(&self, frame: &Frame, k: usize) -> KeyFrameObservation {
+        let (u, v) = frame.un[k];
+        let sigma = self.extractor.scale(frame.kps[k].level) as f64;
+        KeyFrameObservation {
+            u,
+            v,
+            ur: frame.depth[k]
+                .filter(|&d| d < self.params.close_depth_m)
+                .map(|d| u - self.camera.bf / d),
+            info: 1.0 / (sigma * sigma),
+        }
+    }
+
     /// Pose-optimisation measurements of keypoint k matched to map point p.
     fn observations(&self, frame: &Frame, ids: &[(usize, usize)]) -> Vec<Observation> {
         ids.iter()
             .map(|&(k, p)| {
-                let (u, v) = frame.un[k];
-                let sigma = self.extractor.scale(frame.kps[k].level) as f64;
+                let m = self.measure(frame, k);
                 Observation {
                     world: self.map.points[p].position,
-                    u,
-                    v,
-                    ur: frame.depth[k]
-                        .filter(|&d| d < self.params.close_depth_m)
-                        .map(|d| u - self.camera.bf / d),
-                    info: 1.0 / (sigma * sigma),
+                    u: m.u,
+                    v: m.v,
+                    ur: m.ur,
+                    info: m.info,
                 }
             })
             .collect()
@@ -705,10 +718,12 @@ impl System {
         let mut direct: Vec<(usize, u32)> = votes.into_iter().collect();
         direct.sort_unstable_by(|a, b| b.1.cmp(&a.1).then(b.0.cmp(&a.0)));
         // The newest keyframes that were not culled.
-        let mut local: Vec<usize> = (0..self.map.keyframes.len())
+        let mut local: Vec<usize> = self
+            .map
+            .live_keyframes()
             .rev()
-            .filter(|&k| !self.map.keyframes[k].culled)
             .take(self.params.local_keyframes)
+            .map(|(k, _)| k)
             .collect();
         let first = local.last().copied().unwrap_or(0);
         local.extend(
@@ -841,23 +856,11 @@ impl System {
         let pose_wc = pose_cw.inverse();
         let mut observed = Vec::new();
         let mut measurements = Vec::new();
-        let measure = |k: usize| {
-            let (u, v) = frame.un[k];
-            let sigma = self.extractor.scale(frame.kps[k].level) as f64;
-            KeyFrameObservation {
-                u,
-                v,
-                ur: frame.depth[k]
-                    .filter(|&d| d < self.params.close_depth_m)
-                    .map(|d| u - self.camera.bf / d),
-                info: 1.0 / (sigma * sigma),
-            }
-        };
         for (k, m) in matched.iter().enumerate() {
             if let Some(p) = m {
                 self.map.points[*p].observers.push(id);
                 observed.push(*p);
-                measurements.push(measure(k));
+                measurements.push(self.measure(frame, k));
             } else if let Some(d) = frame.depth[k] {
                 let (u, v) = frame.un[k];
                 let world = pose_wc * Point3::from(self.camera.unproject(u, v, d));
@@ -870,7 +873,7 @@ impl System {
                     colour: frame.colours[k],
                 });
                 observed.push(self.map.points.len() - 1);
-                measurements.push(measure(k));
+                measurements.push(self.measure(frame, k));
             }
         }
         self.map.keyframes.push(KeyFrame {
@@ -896,14 +899,7 @@ impl System {
         let cam_points: Vec<Option<Vector3<f64>>> = (0..frame.kps.len())
             .map(|k| frame.depth[k].map(|d| self.camera.unproject(frame.un[k].0, frame.un[k].1, d)))
             .collect();
-        for kf in self
-            .map
-            .keyframes
-            .iter()
-            .rev()
-            .filter(|k| !k.culled)
-            .take(40)
-        {
+        for (_, kf) in self.map.live_keyframes().rev().take(40) {
             let mut pairs = Vec::new();
             let mut pixels = Vec::new();
             for (k, d) in frame.descs.iter().enumerate() {
@@ -923,12 +919,12 @@ impl System {
                     match cam_points[k] {
                         Some(c) => pairs.push((world, c)),
                         None => {
-                            let sigma = self.extractor.scale(frame.kps[k].level) as f64;
+                            let m = self.measure(frame, k);
                             pixels.push(PnpMatch {
                                 world,
-                                u: frame.un[k].0,
-                                v: frame.un[k].1,
-                                info: 1.0 / (sigma * sigma),
+                                u: m.u,
+                                v: m.v,
+                                info: m.info,
                             });
                         }
                     }
@@ -960,10 +956,8 @@ impl System {
     /// left out).
     pub fn keyframe_poses(&mut self) -> Vec<Isometry3<f64>> {
         self.map()
-            .keyframes
-            .iter()
-            .filter(|k| !k.culled)
-            .map(|k| k.pose_cw.inverse())
+            .live_keyframes()
+            .map(|(_, k)| k.pose_cw.inverse())
             .collect()
     }
 }

@@ -68,24 +68,48 @@ fn tracks_the_whole_sequence_accurately() {
     let s = evaluate_files(&tum().join("groundtruth.txt"), &est, EvalOptions::default()).unwrap();
     let _ = std::fs::remove_file(&est);
     let frac = ok as f64 / data.len() as f64;
+    let mapped = sys.mapping_counts();
     eprintln!(
-        "tracked {:.1} %, ATE rmse {:.4} m, {} keyframes",
+        "tracked {:.1} %, ATE rmse {:.4} m, {} keyframes, {} points, {mapped:?}",
         100.0 * frac,
         s.ate_rmse_m,
-        sys.map().keyframes.len()
+        sys.map().keyframes.len(),
+        sys.map().points.len(),
     );
+    // Local mapping triangulated points where depth was missing and merged
+    // duplicates (fr1_rpy turns more than it moves: few pairs have the
+    // baseline to triangulate, about 100 points over the run).
+    assert!(mapped.triangulated > 20, "{mapped:?}");
+    assert!(mapped.fused > 1000, "{mapped:?}");
     assert!(frac >= 0.99, "tracked {frac}");
     // Covisibility graph and spanning tree: symmetric edges weighted by the
-    // points two keyframes both measured, every keyframe but the first
-    // hangs from an older one.
+    // live points two keyframes both measured (when the newer was connected:
+    // fusion changes older keyframes' points later), every keyframe but the
+    // first hangs from an older one.
     let map = sys.map();
     let shared = |a: usize, b: usize| {
         map.keyframes[a]
             .points
             .iter()
-            .filter(|p| map.keyframes[b].points.contains(p))
+            .filter(|&&p| map.points[p].visible > 0 && map.keyframes[b].points.contains(&p))
             .count() as u32
     };
+    let newest = map.keyframes.len() - 1;
+    // Measurements and observers agree, no keyframe measures a point twice,
+    // every id is valid (after fusion and compaction renumbered points).
+    for (id, kf) in map.keyframes.iter().enumerate() {
+        assert_eq!(kf.points.len(), kf.measurements.len());
+        let mut seen = std::collections::HashSet::new();
+        for &p in &kf.points {
+            assert!(seen.insert(p), "keyframe {id} measures point {p} twice");
+            assert!(map.points[p].observers.contains(&id), "{id} -> {p}");
+        }
+    }
+    for (p, point) in map.points.iter().enumerate() {
+        for &k in &point.observers {
+            assert!(map.keyframes[k].points.contains(&p), "point {p} -> {k}");
+        }
+    }
     for (id, kf) in map.keyframes.iter().enumerate() {
         if kf.culled {
             assert!(kf.points.is_empty() && kf.covisible.is_empty());
@@ -102,7 +126,10 @@ fn tracks_the_whole_sequence_accurately() {
             "keyframe {id} has no neighbour"
         );
         for &(other, n) in &kf.covisible {
-            assert!(n >= 1 && n <= shared(id, other), "{id}-{other}: {n}");
+            assert!(n >= 1, "{id}-{other}: {n}");
+            if id == newest {
+                assert_eq!(n, shared(id, other), "{id}-{other}");
+            }
             assert!(
                 map.keyframes[other].covisible.contains(&(id, n)),
                 "edge {id}-{other} one way only"

@@ -4,7 +4,8 @@
 //! sequence.
 //!
 //! `slam-bench [DATASET] [--masks] [--skip N] [--limit N] [--threads N] [--local-ba N]
-//! [--readout S] [--inline-mapping] [--extractor own|kornia] [--verbose] [--out trajectory.txt]`
+//! [--readout S] [--inline-mapping] [--no-triangulation] [--no-fusion] [--extractor own|kornia]
+//! [--verbose] [--out trajectory.txt]`
 //! With more than one extraction thread it also measures extraction alone
 //! with 1 and N threads on the same frames and prints the ratio.
 //! `--masks` feeds the ground-truth masks of a `dynslam synth` folder.
@@ -56,6 +57,12 @@ struct Args {
     /// (same results; to see what the thread saves).
     #[arg(long)]
     inline_mapping: bool,
+    /// No new points triangulated between keyframes (depth only).
+    #[arg(long)]
+    no_triangulation: bool,
+    /// No fusion of duplicate points between keyframes.
+    #[arg(long)]
+    no_fusion: bool,
     /// Rolling-shutter readout in seconds (default: `camera.readout_s` of
     /// the config; 0 turns the correction off).
     #[arg(long)]
@@ -120,11 +127,15 @@ fn main() -> Result<()> {
     params.orb.threads = threads;
     params.orb.backend = orb_backend(&args.extractor)?;
     params.mapping_thread = !args.inline_mapping;
+    params.triangulate = !args.no_triangulation;
+    params.fuse_points = !args.no_fusion;
     if let Some(n) = args.local_ba {
         params.local_ba_keyframes = n;
     }
     let mut system = System::new(params, camera);
     let (mut extract, mut track, mut total) = (Vec::new(), Vec::new(), Vec::new());
+    // Local mapping time per keyframe (on its thread unless --inline-mapping).
+    let mut mapping = Vec::new();
     let mut trajectory = Trajectory {
         stamps: Vec::new(),
         poses: Vec::new(),
@@ -167,6 +178,9 @@ fn main() -> Result<()> {
                 r.counts.map_points
             );
         }
+        if r.counts.mapping_us > 0 {
+            mapping.push(r.counts.mapping_us as f64 / 1e3);
+        }
         extract.push(r.extract_ms);
         track.push(r.track_ms);
         total.push(r.extract_ms + r.track_ms);
@@ -182,7 +196,7 @@ fn main() -> Result<()> {
         std::fs::create_dir_all(dir)?;
     }
     std::fs::write(&args.out, trajectory.to_tum())?;
-    for v in [&mut extract, &mut track, &mut total] {
+    for v in [&mut extract, &mut track, &mut total, &mut mapping] {
         v.sort_by(f64::total_cmp);
     }
     println!(
@@ -192,7 +206,12 @@ fn main() -> Result<()> {
         if args.masks { "ground truth" } else { "none" }
     );
     println!("{:<10} {:>9} {:>9}", "step", "p50 ms", "p99 ms");
-    for (name, v) in [("extract", &extract), ("track", &track), ("total", &total)] {
+    for (name, v) in [
+        ("extract", &extract),
+        ("track", &track),
+        ("total", &total),
+        ("mapping/kf", &mapping),
+    ] {
         println!(
             "{:<10} {:>9.2} {:>9.2}",
             name,
@@ -200,6 +219,7 @@ fn main() -> Result<()> {
             percentile(v, 99.0)
         );
     }
+    let mapped = system.mapping_counts();
     let map = system.map();
     let live = map.live_keyframes().count();
     println!(
@@ -210,6 +230,10 @@ fn main() -> Result<()> {
         map.keyframes.len() - live,
         map.points.len(),
         map.points.iter().filter(|p| p.visible > 0).count()
+    );
+    println!(
+        "local mapping: {} points triangulated, {} duplicates fused, {} observations added",
+        mapped.triangulated, mapped.fused, mapped.observations_added
     );
     println!("peak memory (VmHWM) {:.1} MiB", peak_rss_mib());
     let mut variants = vec![(format!("{threads} threads"), orb(threads, OrbBackend::Own))];

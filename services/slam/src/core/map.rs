@@ -1,15 +1,17 @@
 //! The map (keyframes, map points, covisibility graph, spanning tree) and
 //! what local mapping does to it after each keyframe (ORB-SLAM2's
-//! LocalMapping): connect the keyframe in the covisibility graph, cull
-//! points that are rarely found, optionally bundle-adjust the newest
-//! keyframes, and cull keyframes whose points others see well enough.
-//! [`super::local_mapping`] runs this on its own thread.
+//! LocalMapping): cull points that are rarely found, triangulate new points
+//! with covisible keyframes ([`super::triangulation`]), fuse duplicate
+//! points ([`super::fusion`]), connect the keyframe in the covisibility
+//! graph, optionally bundle-adjust the newest keyframes, and cull keyframes
+//! whose points others see well enough. [`super::local_mapping`] runs this
+//! on its own thread.
 
 use std::collections::HashMap;
 
 use nalgebra::{Isometry3, Point3, Vector3};
 
-use super::camera::Camera;
+use super::camera::{Bounds, Camera};
 use super::local_ba::{bundle_adjust, BaObservation};
 use super::orb::Descriptor;
 use super::system::SlamParams;
@@ -21,6 +23,14 @@ pub const COVISIBILITY_MIN: u32 = 15;
 /// (ORB-SLAM2's 90 % and 3).
 const REDUNDANT_SHARE: f64 = 0.9;
 const REDUNDANT_OBSERVERS: usize = 3;
+/// Covisible keyframes triangulation and fusion work with (ORB-SLAM2's 20
+/// for RGB-D), and the neighbours of each that fusion adds.
+pub(super) const MAPPING_NEIGHBOURS: usize = 20;
+pub(super) const SECOND_NEIGHBOURS: usize = 5;
+/// A triangulated point must be measured by this many keyframes two
+/// keyframes after its creation, or it goes (ORB-SLAM2's recent-point rule:
+/// a point only its two creators agree on is likely a wrong match).
+const TRIANGULATED_MIN_OBSERVERS: usize = 3;
 
 /// Keyframes and map points. Ids are indices and stay valid: culled
 /// keyframes and points are flagged, not removed.
@@ -30,13 +40,41 @@ pub struct Map {
     pub keyframes: Vec<KeyFrame>,
 }
 
+/// Culled points are dropped from the map once there are more of them than
+/// live ones, and at least this many (so that compaction, which renumbers
+/// the points, stays rare).
+const COMPACT_MIN_CULLED: usize = 2000;
+
 /// What local mapping did for one keyframe.
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Default)]
 pub struct MappingReport {
     /// Wall time of the whole job (ms).
     pub ms: f64,
     /// Local bundle adjustment moved keyframe poses.
     pub adjusted: bool,
+    pub counts: MappingCounts,
+    /// The points were compacted: the new id of each old one (None:
+    /// dropped). Whoever holds point ids renumbers them with it.
+    pub renumbered: Option<Vec<Option<usize>>>,
+}
+
+/// What local mapping added to and merged in the map.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct MappingCounts {
+    /// Points triangulated with covisible keyframes.
+    pub triangulated: usize,
+    /// Duplicate points merged.
+    pub fused: usize,
+    /// Keyframe keypoints that gained a point they had not been matched to.
+    pub observations_added: usize,
+}
+
+impl std::ops::AddAssign for MappingCounts {
+    fn add_assign(&mut self, o: Self) {
+        self.triangulated += o.triangulated;
+        self.fused += o.fused;
+        self.observations_added += o.observations_added;
+    }
 }
 
 #[derive(Debug, Clone)]
@@ -51,6 +89,28 @@ pub struct MapPoint {
     pub found: u32,
     /// Colour of the pixel it was created from (for the PLY map).
     pub colour: [u8; 3],
+    /// The keyframe that triangulated it, until it has proved itself (see
+    /// `TRIANGULATED_MIN_OBSERVERS`); None for points from depth.
+    pub triangulated_in: Option<usize>,
+    /// Its distance from the camera that created it times the scale of the
+    /// keypoint's pyramid level: the distance at which it would appear at
+    /// level 0, which gives the distances a camera can recognise it from
+    /// and the level it appears at (ORB-SLAM2's scale-invariance region).
+    pub level0_distance: f64,
+}
+
+impl MapPoint {
+    /// The pyramid level (of `levels`, `scale_factor` apart) the point
+    /// should appear at from `distance` metres; None outside the distances
+    /// its descriptor can be recognised from (with ORB-SLAM2's 20 % slack).
+    pub fn predicted_level(&self, distance: f64, scale_factor: f64, levels: usize) -> Option<i32> {
+        let finest = self.level0_distance / scale_factor.powi(levels as i32 - 1);
+        if !(0.8 * finest..=1.2 * self.level0_distance).contains(&distance) {
+            return None;
+        }
+        let level = (self.level0_distance / distance).ln() / scale_factor.ln();
+        Some((level.ceil() as i32).clamp(0, levels as i32 - 1))
+    }
 }
 
 /// A map point as one keyframe measured it (for bundle adjustment).
@@ -62,6 +122,29 @@ pub struct KeyFrameObservation {
     pub ur: Option<f64>,
     /// 1 / sigma^2 of the keypoint's pyramid level.
     pub info: f64,
+    /// The keypoint's own descriptor (fusion compares map points with it).
+    pub descriptor: Descriptor,
+}
+
+impl KeyFrameObservation {
+    /// The keypoint's scale (1.2^level for the default pyramid).
+    pub fn sigma(&self) -> f64 {
+        1.0 / self.info.sqrt()
+    }
+
+    /// The keypoint's pyramid level, for a pyramid `scale_factor` apart.
+    pub fn level(&self, scale_factor: f64) -> i32 {
+        (self.sigma().ln() / scale_factor.ln()).round() as i32
+    }
+}
+
+/// A keyframe keypoint no map point explains (it had no depth and matched
+/// nothing when the keyframe was made): triangulation and fusion may still
+/// give it one.
+#[derive(Debug, Clone, Copy)]
+pub struct SpareKeypoint {
+    pub measurement: KeyFrameObservation,
+    pub colour: [u8; 3],
 }
 
 #[derive(Debug, Clone)]
@@ -72,6 +155,10 @@ pub struct KeyFrame {
     pub points: Vec<usize>,
     /// How it measured each of them (same order as `points`).
     pub measurements: Vec<KeyFrameObservation>,
+    /// Its keypoints without a point.
+    pub spare: Vec<SpareKeypoint>,
+    /// Undistorted image extent.
+    pub bounds: Bounds,
     /// Covisibility graph: keyframes sharing at least `COVISIBILITY_MIN`
     /// points with this one (or the one sharing most), with the count,
     /// most shared first.
@@ -93,10 +180,13 @@ impl Map {
     }
 
     /// Local mapping after keyframe `id` was inserted (its points and
-    /// observations in place): covisibility edges and spanning-tree parent,
-    /// recent-point culling, local bundle adjustment over the newest
-    /// `params.local_ba_keyframes` keyframes (below 2: off), keyframe culling
-    /// among its neighbours.
+    /// observations in place), in ORB-SLAM2's order: recent-point culling,
+    /// new points triangulated with its covisible keyframes, duplicate
+    /// points fused with theirs (each step as `params` enables it),
+    /// covisibility edges and spanning-tree parent, local bundle adjustment
+    /// over the newest `params.local_ba_keyframes` keyframes (below 2: off),
+    /// keyframe culling among its neighbours, and compaction of the points
+    /// when culled ones outnumber the live ones.
     pub fn process_keyframe(
         &mut self,
         id: usize,
@@ -104,15 +194,65 @@ impl Map {
         params: &SlamParams,
     ) -> MappingReport {
         let t = std::time::Instant::now();
-        self.connect(id);
-        self.cull_points();
-        let ba = params.local_ba_keyframes;
-        let adjusted = ba > 1 && self.local_bundle_adjustment(camera, ba);
-        self.cull_keyframes(id, params.orb.scale_factor as f64);
-        MappingReport {
-            ms: t.elapsed().as_secs_f64() * 1e3,
-            adjusted,
+        let mut report = MappingReport::default();
+        self.cull_points(id);
+        let scale_factor = params.orb.scale_factor as f64;
+        if params.triangulate {
+            let neighbours = self.best_covisible(id, MAPPING_NEIGHBOURS);
+            report.counts.triangulated = self.triangulate(id, &neighbours, camera, scale_factor);
         }
+        if params.fuse_points {
+            (report.counts.fused, report.counts.observations_added) =
+                self.fuse(id, camera, scale_factor, params.orb.levels);
+        }
+        self.connect(id);
+        let ba = params.local_ba_keyframes;
+        report.adjusted = ba > 1 && self.local_bundle_adjustment(camera, ba);
+        self.cull_keyframes(id, scale_factor);
+        let culled = self.points.iter().filter(|p| p.visible == 0).count();
+        if culled >= COMPACT_MIN_CULLED && culled > self.points.len() - culled {
+            report.renumbered = Some(self.compact());
+        }
+        report.ms = t.elapsed().as_secs_f64() * 1e3;
+        report
+    }
+
+    /// Drops the culled points, and the keyframes' measurements of them;
+    /// the others are renumbered in order. Returns the new id of each old
+    /// one. Without it a map grows by every point ever made (about 70 per
+    /// frame on fr1_rpy) however few stay in use.
+    pub fn compact(&mut self) -> Vec<Option<usize>> {
+        let mut next = 0;
+        let renumbered: Vec<Option<usize>> = self
+            .points
+            .iter()
+            .map(|p| {
+                (p.visible > 0).then(|| {
+                    next += 1;
+                    next - 1
+                })
+            })
+            .collect();
+        self.points.retain(|p| p.visible > 0);
+        for kf in &mut self.keyframes {
+            let points = std::mem::take(&mut kf.points);
+            let measurements = std::mem::take(&mut kf.measurements);
+            for (p, m) in points.into_iter().zip(measurements) {
+                if let Some(new) = renumbered[p] {
+                    kf.points.push(new);
+                    kf.measurements.push(m);
+                }
+            }
+        }
+        renumbered
+    }
+
+    /// The `n` live keyframes sharing most points with keyframe `id`
+    /// (among those sharing at least `COVISIBILITY_MIN`, or the best one).
+    pub(super) fn best_covisible(&self, id: usize, n: usize) -> Vec<usize> {
+        let (mut neighbours, _) = self.covisibility_of(id);
+        neighbours.truncate(n);
+        neighbours.into_iter().map(|(k, _)| k).collect()
     }
 
     /// Puts keyframe `id` into the covisibility graph and the spanning tree.
@@ -128,11 +268,24 @@ impl Map {
         kf.parent = parent;
     }
 
-    /// Recent-point culling: points seen in under a quarter of the frames
-    /// that should have seen them stop being matched.
-    fn cull_points(&mut self) {
+    /// Recent-point culling when keyframe `id` arrives: points seen in
+    /// under a quarter of the frames that should have seen them stop being
+    /// matched, and so do triangulated points that two keyframes later fewer
+    /// than `TRIANGULATED_MIN_OBSERVERS` keyframes measure.
+    fn cull_points(&mut self, id: usize) {
         for p in &mut self.points {
-            if p.visible >= 20 && (p.found as f64) < 0.25 * p.visible as f64 {
+            if p.visible == 0 {
+                continue;
+            }
+            let rarely_found = p.visible >= 20 && (p.found as f64) < 0.25 * p.visible as f64;
+            let unconfirmed = match p.triangulated_in {
+                Some(k) if id >= k + 2 => {
+                    p.triangulated_in = None;
+                    p.observers.len() < TRIANGULATED_MIN_OBSERVERS
+                }
+                _ => false,
+            };
+            if rarely_found || unconfirmed {
                 p.visible = 0;
             }
         }
@@ -213,6 +366,7 @@ impl Map {
         kf.culled = true;
         let points = std::mem::take(&mut kf.points);
         kf.measurements.clear();
+        kf.spare = Vec::new();
         let edges = std::mem::take(&mut kf.covisible);
         let parent = kf.parent;
         for p in points {
@@ -233,11 +387,14 @@ impl Map {
     }
 
     /// Edges of keyframe `id` in the covisibility graph (from the
-    /// observers of its points), most shared first, and its spanning-tree
-    /// parent.
+    /// observers of its live points), most shared first, and its
+    /// spanning-tree parent.
     fn covisibility_of(&self, id: usize) -> (Vec<(usize, u32)>, Option<usize>) {
         let mut shared: HashMap<usize, u32> = HashMap::new();
         for &p in &self.keyframes[id].points {
+            if self.points[p].visible == 0 {
+                continue;
+            }
             for &k in &self.points[p].observers {
                 if k != id {
                     *shared.entry(k).or_default() += 1;

@@ -17,8 +17,7 @@
 //! local mapping ([`super::map`]: covisibility, point and keyframe culling,
 //! optional local bundle adjustment) runs on its own thread
 //! ([`super::local_mapping`]) while the next frame's features are
-//! extracted. Not here yet (README): triangulation between keyframes,
-//! fusion of duplicate points, loop closing.
+//! extracted. Not here yet (README): loop closing.
 
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use pipeline::rng::SplitMix64;
@@ -27,8 +26,11 @@ use shared_types::{TrackCounts, TrackState};
 use std::collections::HashMap;
 
 use super::camera::{Bounds, Camera};
+use super::grid::Grid;
 use super::local_mapping::LocalMapper;
-use super::map::{KeyFrame, KeyFrameObservation, Map, MapPoint, MappingReport};
+use super::map::{
+    KeyFrame, KeyFrameObservation, Map, MapPoint, MappingCounts, MappingReport, SpareKeypoint,
+};
 use super::optimize::{is_finite_pose, optimize_pose, renormalized, Observation};
 use super::orb::{hamming, Descriptor, GrayU8, KeyPoint, OrbExtractor, OrbParams};
 use super::pnp::{pnp_ransac, PnpMatch};
@@ -69,6 +71,12 @@ pub struct SlamParams {
     /// feature extraction) rather than inline after each keyframe; the
     /// results are the same, only the time moves.
     pub mapping_thread: bool,
+    /// Local mapping triangulates new points from keypoints without depth
+    /// that two covisible keyframes see ([`super::triangulation`]).
+    pub triangulate: bool,
+    /// Local mapping merges duplicate points with the neighbours' and adds
+    /// observations to keypoints they land on ([`super::fusion`]).
+    pub fuse_points: bool,
 }
 
 impl Default for SlamParams {
@@ -84,6 +92,8 @@ impl Default for SlamParams {
             local_ba_keyframes: 0,
             close_depth_m: 3.1,
             mapping_thread: true,
+            triangulate: true,
+            fuse_points: true,
         }
     }
 }
@@ -100,56 +110,6 @@ struct Frame {
     grid: Grid,
     /// Undistorted image extent (x0, x1, y0, y1).
     bounds: Bounds,
-}
-
-/// Keypoints bucketed by undistorted position, for radius search.
-struct Grid {
-    cell: f64,
-    cols: usize,
-    rows: usize,
-    cells: Vec<Vec<usize>>,
-}
-
-impl Grid {
-    fn new(un: &[(f64, f64)], width: usize, height: usize) -> Self {
-        let cell = 16.0;
-        let (cols, rows) = (width.div_ceil(16) + 2, height.div_ceil(16) + 2);
-        let mut cells = vec![Vec::new(); cols * rows];
-        for (i, &(u, v)) in un.iter().enumerate() {
-            if let Some(c) = Self::index(cell, cols, rows, u, v) {
-                cells[c].push(i);
-            }
-        }
-        Self {
-            cell,
-            cols,
-            rows,
-            cells,
-        }
-    }
-
-    fn index(cell: f64, cols: usize, rows: usize, u: f64, v: f64) -> Option<usize> {
-        let (cx, cy) = ((u / cell).floor() + 1.0, (v / cell).floor() + 1.0);
-        (cx >= 0.0 && cy >= 0.0 && (cx as usize) < cols && (cy as usize) < rows)
-            .then(|| cy as usize * cols + cx as usize)
-    }
-
-    fn near(&self, u: f64, v: f64, r: f64, out: &mut Vec<usize>) {
-        out.clear();
-        let (x0, x1) = (
-            ((u - r) / self.cell).floor() + 1.0,
-            ((u + r) / self.cell).floor() + 1.0,
-        );
-        let (y0, y1) = (
-            ((v - r) / self.cell).floor() + 1.0,
-            ((v + r) / self.cell).floor() + 1.0,
-        );
-        for cy in y0.max(0.0) as usize..=(y1.max(0.0) as usize).min(self.rows - 1) {
-            for cx in x0.max(0.0) as usize..=(x1.max(0.0) as usize).min(self.cols - 1) {
-                out.extend_from_slice(&self.cells[cy * self.cols + cx]);
-            }
-        }
-    }
 }
 
 /// What one call of `track_rgbd` reports.
@@ -192,6 +152,8 @@ pub struct System {
     /// Local mapping time of the keyframe whose mapping finished while this
     /// frame was processed (0 if none).
     mapping_ms: f64,
+    /// What local mapping did over the run so far.
+    mapped: MappingCounts,
 }
 
 /// Where the last keyframe's local mapping stands.
@@ -236,6 +198,7 @@ impl System {
             lost: false,
             bounds: None,
             mapping_ms: 0.0,
+            mapped: MappingCounts::default(),
         }
     }
 
@@ -416,6 +379,13 @@ impl System {
         &self.map
     }
 
+    /// Points local mapping triangulated and fused so far (once it has
+    /// given the map back).
+    pub fn mapping_counts(&mut self) -> MappingCounts {
+        self.settle();
+        self.mapped
+    }
+
     /// Local mapping for keyframe `id`: on the mapping thread (the map goes
     /// with it until `settle`) or, without one, here and now.
     fn start_mapping(&mut self, id: usize) {
@@ -462,6 +432,14 @@ impl System {
                 }
             },
         };
+        self.mapped += report.counts;
+        if let Some(renumbered) = &report.renumbered {
+            self.last_matched = self
+                .last_matched
+                .iter()
+                .filter_map(|&p| renumbered[p])
+                .collect();
+        }
         if report.adjusted {
             if let Some(kf) = self.map.keyframes.last() {
                 self.last_pose = Some(kf.pose_cw);
@@ -588,6 +566,7 @@ impl System {
                 .filter(|&d| d < self.params.close_depth_m)
                 .map(|d| u - self.camera.bf / d),
             info: 1.0 / (sigma * sigma),
+            descriptor: frame.descs[k],
         }
     }
 
@@ -856,6 +835,7 @@ impl System {
         let pose_wc = pose_cw.inverse();
         let mut observed = Vec::new();
         let mut measurements = Vec::new();
+        let mut spare = Vec::new();
         for (k, m) in matched.iter().enumerate() {
             if let Some(p) = m {
                 self.map.points[*p].observers.push(id);
@@ -863,7 +843,9 @@ impl System {
                 measurements.push(self.measure(frame, k));
             } else if let Some(d) = frame.depth[k] {
                 let (u, v) = frame.un[k];
-                let world = pose_wc * Point3::from(self.camera.unproject(u, v, d));
+                let seen = self.camera.unproject(u, v, d);
+                let world = pose_wc * Point3::from(seen);
+                let m = self.measure(frame, k);
                 self.map.points.push(MapPoint {
                     position: world.coords,
                     descriptor: frame.descs[k],
@@ -871,15 +853,24 @@ impl System {
                     visible: 1,
                     found: 1,
                     colour: frame.colours[k],
+                    triangulated_in: None,
+                    level0_distance: seen.norm() * m.sigma(),
                 });
                 observed.push(self.map.points.len() - 1);
-                measurements.push(self.measure(frame, k));
+                measurements.push(m);
+            } else {
+                spare.push(SpareKeypoint {
+                    measurement: self.measure(frame, k),
+                    colour: frame.colours[k],
+                });
             }
         }
         self.map.keyframes.push(KeyFrame {
             pose_cw: *pose_cw,
             points: observed,
             measurements,
+            spare,
+            bounds: frame.bounds,
             // Local mapping connects it.
             covisible: Vec::new(),
             parent: None,

@@ -4,7 +4,7 @@
 //! sequence.
 //!
 //! `slam-bench [DATASET] [--masks] [--skip N] [--limit N] [--threads N] [--local-ba N]
-//! [--readout S] [--inline-mapping] [--no-triangulation] [--no-fusion] [--extractor own|kornia]
+//! [--readout S] [--inline-mapping] [--no-triangulation] [--fusion] [--extractor own|kornia]
 //! [--verbose] [--out trajectory.txt]`
 //! With more than one extraction thread it also measures extraction alone
 //! with 1 and N threads on the same frames and prints the ratio.
@@ -60,9 +60,9 @@ struct Args {
     /// No new points triangulated between keyframes (depth only).
     #[arg(long)]
     no_triangulation: bool,
-    /// No fusion of duplicate points between keyframes.
+    /// Fuse duplicate points between keyframes (off by default).
     #[arg(long)]
-    no_fusion: bool,
+    fusion: bool,
     /// Rolling-shutter readout in seconds (default: `camera.readout_s` of
     /// the config; 0 turns the correction off).
     #[arg(long)]
@@ -128,7 +128,7 @@ fn main() -> Result<()> {
     params.orb.backend = orb_backend(&args.extractor)?;
     params.mapping_thread = !args.inline_mapping;
     params.triangulate = !args.no_triangulation;
-    params.fuse_points = !args.no_fusion;
+    params.fuse_points = args.fusion;
     if let Some(n) = args.local_ba {
         params.local_ba_keyframes = n;
     }

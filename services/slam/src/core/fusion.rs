@@ -126,14 +126,23 @@ impl Map {
             let mut best: Option<(usize, u32)> = None;
             for &c in &near {
                 let m = &candidates[c];
-                let free = match c.checked_sub(measured) {
-                    Some(s) => spare_taken[s].is_none(),
-                    None => self.points[self.keyframes[k].points[c]].visible > 0,
+                // A measured keypoint's depth: measured if close, else that
+                // of its point (far depth is not measured but still tells
+                // a person 2 m away from the wall behind them).
+                let (free, depth_ur) = match c.checked_sub(measured) {
+                    Some(s) => (spare_taken[s].is_none(), m.ur),
+                    None => {
+                        let q = &self.points[self.keyframes[k].points[c]];
+                        let zq = (pose * Point3::from(q.position)).z;
+                        let ur_q = (zq > 1e-3).then(|| m.u - camera.bf / zq);
+                        (q.visible > 0, m.ur.or(ur_q))
+                    }
                 };
-                let r = Vector3::new(m.u - u, m.v - v, m.ur.map_or(0.0, |mr| mr - ur));
+                let r = Vector3::new(m.u - u, m.v - v, depth_ur.map_or(0.0, |mr| mr - ur));
+                let has_ur = depth_ur.is_some();
                 if !free
                     || !(level - 1..=level).contains(&m.level(scale_factor))
-                    || chi2_error(&r, m.ur.is_some(), m.info) > chi2_threshold(m.ur.is_some())
+                    || chi2_error(&r, has_ur, m.info) > chi2_threshold(has_ur)
                 {
                     continue;
                 }

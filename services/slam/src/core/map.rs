@@ -1,11 +1,11 @@
 //! The map (keyframes, map points, covisibility graph, spanning tree) and
 //! what local mapping does to it after each keyframe (ORB-SLAM2's
 //! LocalMapping): cull points that are rarely found, triangulate new points
-//! with covisible keyframes ([`super::triangulation`]), fuse duplicate
-//! points ([`super::fusion`]), connect the keyframe in the covisibility
-//! graph, optionally bundle-adjust the newest keyframes, and cull keyframes
-//! whose points others see well enough. [`super::local_mapping`] runs this
-//! on its own thread.
+//! with covisible keyframes ([`super::triangulation`]), optionally fuse
+//! duplicate points ([`super::fusion`]), connect the keyframe in the
+//! covisibility graph, optionally bundle-adjust the newest keyframes, cull
+//! keyframes whose points others see well enough, and drop culled points
+//! once they pile up. [`super::local_mapping`] runs this on its own thread.
 
 use std::collections::HashMap;
 
@@ -32,8 +32,9 @@ pub(super) const SECOND_NEIGHBOURS: usize = 5;
 /// a point only its two creators agree on is likely a wrong match).
 const TRIANGULATED_MIN_OBSERVERS: usize = 3;
 
-/// Keyframes and map points. Ids are indices and stay valid: culled
-/// keyframes and points are flagged, not removed.
+/// Keyframes and map points, both by index. Culled keyframes are flagged,
+/// never removed, so keyframe ids stay valid; culled points are flagged
+/// and dropped later by [`Map::compact`], which renumbers the rest.
 #[derive(Debug, Clone, Default)]
 pub struct Map {
     pub points: Vec<MapPoint>,
@@ -84,7 +85,7 @@ pub struct MapPoint {
     /// Keyframes that measured it (ids, in insertion order).
     pub observers: Vec<usize>,
     /// Frames in which it was predicted visible / actually matched; 0
-    /// visible: culled (kept so ids stay valid, never matched again).
+    /// visible: culled (never matched again, dropped at the next compaction).
     pub visible: u32,
     pub found: u32,
     /// Colour of the pixel it was created from (for the PLY map).

@@ -25,6 +25,11 @@ pub struct KeyPoint {
 
 pub type Descriptor = [u64; 4];
 
+/// Largest Hamming distance at which two descriptors are taken for the
+/// same point (ORB-SLAM2's TH_LOW): tracking, relocalisation,
+/// triangulation and fusion all match with it.
+pub const MATCH_MAX_DISTANCE: u32 = 50;
+
 /// Hamming distance of two descriptors.
 #[inline]
 pub fn hamming(a: &Descriptor, b: &Descriptor) -> u32 {

@@ -33,7 +33,9 @@ use super::map::{
     KeyFrame, KeyFrameObservation, Map, MapPoint, MappingCounts, MappingReport, SpareKeypoint,
 };
 use super::optimize::{is_finite_pose, optimize_pose, renormalized, Observation};
-use super::orb::{hamming, Descriptor, GrayU8, KeyPoint, OrbExtractor, OrbParams};
+use super::orb::{
+    hamming, Descriptor, GrayU8, KeyPoint, OrbExtractor, OrbParams, MATCH_MAX_DISTANCE,
+};
 use super::pnp::{pnp_ransac, PnpMatch};
 
 /// Tracked frames the rolling-shutter correction estimates the motion over.
@@ -762,7 +764,6 @@ impl System {
         radius: f64,
         count_visible: bool,
     ) -> Vec<Option<usize>> {
-        const MAX_DISTANCE: u32 = 50;
         let mut best: Vec<Option<(usize, u32)>> = vec![None; frame.kps.len()];
         let mut near = Vec::new();
         for &p in local {
@@ -792,7 +793,7 @@ impl System {
                     continue;
                 }
                 let d = hamming(&self.map.points[p].descriptor, &frame.descs[k]);
-                if d <= MAX_DISTANCE && cand.is_none_or(|c| d < c.1) {
+                if d <= MATCH_MAX_DISTANCE && cand.is_none_or(|c| d < c.1) {
                     cand = Some((k, d));
                 }
             }
@@ -909,7 +910,7 @@ impl System {
                         b2 = h;
                     }
                 }
-                if b1 <= 50 && (b1 as f64) < 0.8 * b2 as f64 {
+                if b1 <= MATCH_MAX_DISTANCE && (b1 as f64) < 0.8 * b2 as f64 {
                     let world = self.map.points[bp].position;
                     match cam_points[k] {
                         Some(c) => pairs.push((world, c)),

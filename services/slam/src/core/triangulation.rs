@@ -17,10 +17,8 @@ use nalgebra::{Isometry3, Matrix3, Point3, RowVector4, Vector3};
 use super::camera::Camera;
 use super::map::{KeyFrame, Map, MapPoint, SpareKeypoint};
 use super::optimize::chi2_threshold;
-use super::orb::hamming;
+use super::orb::{hamming, MATCH_MAX_DISTANCE};
 
-/// Largest descriptor distance of a match (ORB-SLAM2's TH_LOW).
-const MAX_DISTANCE: u32 = 50;
 /// The best match must beat the second best along the line by this ratio:
 /// a repeated texture gives many candidates on one epipolar line.
 const RATIO: f64 = 0.9;
@@ -153,7 +151,7 @@ fn epipolar_matches(
         for (j, s2) in kf2.spare.iter().enumerate() {
             let m2 = &s2.measurement;
             let d = hamming(&m1.descriptor, &m2.descriptor);
-            if d > MAX_DISTANCE || d >= second {
+            if d > MATCH_MAX_DISTANCE || d >= second {
                 continue;
             }
             let sigma2 = m2.sigma() * m2.sigma();
@@ -173,7 +171,7 @@ fn epipolar_matches(
                 second = d;
             }
         }
-        if best.0 <= MAX_DISTANCE && (best.0 as f64) < RATIO * second as f64 {
+        if best.0 <= MATCH_MAX_DISTANCE && (best.0 as f64) < RATIO * second as f64 {
             pairs.push((i, best.1));
         }
     }

@@ -2,7 +2,7 @@
 //! of the Lucas Kanade feature tracker"): per level, iterative Gauss-Newton on
 //! a square window, the estimate carried from coarse to fine.
 
-use crate::pyramid::Pyramid;
+use crate::pyramid::{Gray, Pyramid};
 
 /// Tracking parameters.
 #[derive(Debug, Clone, Copy)]
@@ -59,22 +59,35 @@ fn track_one(
     // Displacement guess, in the current level's pixels.
     let top = (1u32 << (levels - 1)) as f32;
     let (mut gx, mut gy) = (guess.0 / top, guess.1 / top);
+    let mut grads = Vec::with_capacity(n as usize);
+    let mut patch = Vec::with_capacity((2 * p.radius + 3).pow(2));
     for level in (0..levels).rev() {
         let scale = (1u32 << level) as f32;
         let (a, b) = (&prev.levels[level], &next.levels[level]);
         let (ux, uy) = (pt.0 / scale, pt.1 / scale);
-        // Structure tensor and template gradients on the window of `a`.
+        // Structure tensor and template gradients on the window of `a`. The
+        // window's offsets are whole pixels, so one set of bilinear weights
+        // serves every pixel of it (here and in the iterations below).
+        // The window and a one-pixel frame around it, for the gradients.
+        let template = Window::at(ux, uy);
+        let side = 2 * r + 3;
+        patch.clear();
+        for dy in -r - 1..=r + 1 {
+            for dx in -r - 1..=r + 1 {
+                patch.push(template.value(a, dx, dy));
+            }
+        }
+        let at = |dx: isize, dy: isize| patch[((dy + r + 1) * side + dx + r + 1) as usize];
         let (mut gxx, mut gxy, mut gyy) = (0.0f32, 0.0f32, 0.0f32);
-        let mut grads = Vec::with_capacity(n as usize);
+        grads.clear();
         for dy in -r..=r {
             for dx in -r..=r {
-                let (x, y) = (ux + dx as f32, uy + dy as f32);
-                let ix = 0.5 * (a.sample(x + 1.0, y) - a.sample(x - 1.0, y));
-                let iy = 0.5 * (a.sample(x, y + 1.0) - a.sample(x, y - 1.0));
+                let ix = 0.5 * (at(dx + 1, dy) - at(dx - 1, dy));
+                let iy = 0.5 * (at(dx, dy + 1) - at(dx, dy - 1));
                 gxx += ix * ix;
                 gxy += ix * iy;
                 gyy += iy * iy;
-                grads.push((ix, iy, a.sample(x, y)));
+                grads.push((ix, iy, at(dx, dy)));
             }
         }
         let det = gxx * gyy - gxy * gxy;
@@ -85,14 +98,14 @@ fn track_one(
         }
         let (mut vx, mut vy) = (0.0f32, 0.0f32);
         for _ in 0..p.iterations {
+            let moved = Window::at(ux + gx + vx, uy + gy + vy);
             let (mut bx, mut by) = (0.0f32, 0.0f32);
             let mut k = 0;
             for dy in -r..=r {
                 for dx in -r..=r {
                     let (ix, iy, ia) = grads[k];
                     k += 1;
-                    let jb = b.sample(ux + dx as f32 + gx + vx, uy + dy as f32 + gy + vy);
-                    let diff = ia - jb;
+                    let diff = ia - moved.value(b, dx, dy);
                     bx += diff * ix;
                     by += diff * iy;
                 }
@@ -120,6 +133,43 @@ fn track_one(
         && x <= (base.width - 1) as f32
         && y <= (base.height - 1) as f32)
         .then_some((x, y))
+}
+
+/// Bilinear sampling around a point at whole-pixel offsets: the weights
+/// are the same for every offset, so they are computed once.
+struct Window {
+    x0: isize,
+    y0: isize,
+    wx: f32,
+    wy: f32,
+}
+
+impl Window {
+    fn at(x: f32, y: f32) -> Self {
+        // Far outside the image reads its border anyway; the clamp keeps a
+        // diverged estimate from overflowing the offsets.
+        let (x, y) = (x.clamp(-1e6, 1e6), y.clamp(-1e6, 1e6));
+        let (fx, fy) = (x.floor(), y.floor());
+        Self {
+            x0: fx as isize,
+            y0: fy as isize,
+            wx: x - fx,
+            wy: y - fy,
+        }
+    }
+
+    /// The image at offset (dx, dy) from the point; positions outside it
+    /// read its border (as `Gray::sample`).
+    #[inline]
+    fn value(&self, img: &Gray, dx: isize, dy: isize) -> f32 {
+        let (w, h) = (img.width as isize - 1, img.height as isize - 1);
+        let (x, y) = (self.x0 + dx, self.y0 + dy);
+        let (xa, xb) = (x.clamp(0, w) as usize, (x + 1).clamp(0, w) as usize);
+        let (ya, yb) = (y.clamp(0, h) as usize, (y + 1).clamp(0, h) as usize);
+        let top = img.at(xa, ya) * (1.0 - self.wx) + img.at(xb, ya) * self.wx;
+        let bottom = img.at(xa, yb) * (1.0 - self.wx) + img.at(xb, yb) * self.wx;
+        top * (1.0 - self.wy) + bottom * self.wy
+    }
 }
 
 #[cfg(test)]

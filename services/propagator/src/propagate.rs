@@ -421,10 +421,32 @@ fn follow(
             .iter()
             .map(|(_, r)| r.0.abs().max(r.1.abs()))
             .fold(0.0, f32::max);
-    let tx0 = (bx0 - margin).floor().max(0.0) as usize;
-    let ty0 = (by0 - margin).floor().max(0.0) as usize;
-    let tx1 = ((bx1 + margin).ceil() as usize).min(width);
-    let ty1 = ((by1 + margin).ceil() as usize).min(height);
+    // An object cut by the image border continues beyond it: what comes
+    // into view there is taken as the continuation of the mask's outermost
+    // row or column (a person walking in is mostly vertical), so the
+    // region extends to that border.
+    let cut = BorderCut {
+        left: (mx0 <= BORDER_PX).then_some(mx0),
+        right: (mx1 + 1 + BORDER_PX >= width).then_some(mx1),
+        top: (my0 <= BORDER_PX).then_some(my0),
+        bottom: (my1 + 1 + BORDER_PX >= height).then_some(my1),
+    };
+    let tx0 = match cut.left {
+        Some(_) => 0,
+        None => (bx0 - margin).floor().max(0.0) as usize,
+    };
+    let ty0 = match cut.top {
+        Some(_) => 0,
+        None => (by0 - margin).floor().max(0.0) as usize,
+    };
+    let tx1 = match cut.right {
+        Some(_) => width,
+        None => ((bx1 + margin).ceil().max(0.0) as usize).min(width),
+    };
+    let ty1 = match cut.bottom {
+        Some(_) => height,
+        None => ((by1 + margin).ceil().max(0.0) as usize).min(height),
+    };
     if tx0 >= tx1 || ty0 >= ty1 {
         return None; // left the view
     }
@@ -476,17 +498,21 @@ fn follow(
             // Where this pixel came from: undo the residual, then the affine.
             let r = residual_at(x, y);
             let (sx, sy) = inv.apply((x as f32 - r.0, y as f32 - r.1));
-            let (ix, iy) = (sx.round(), sy.round());
-            if ix >= 0.0
-                && iy >= 0.0
-                && (ix as usize) < width
-                && (iy as usize) < height
-                && mask[iy as usize * width + ix as usize]
-                && (cur_half.sample(x as f32 * half, y as f32 * half)
-                    - prev_half.sample(sx * half, sy * half))
-                .abs()
-                    <= p.max_grey_difference
-            {
+            let inside = match cut.source(sx.round(), sy.round(), width, height) {
+                // Seen in the previous frame: in the mask there and of the
+                // same grey value here.
+                Some((ix, iy, true)) => {
+                    mask[iy * width + ix]
+                        && (cur_half.sample(x as f32 * half, y as f32 * half)
+                            - prev_half.sample(sx * half, sy * half))
+                        .abs()
+                            <= p.max_grey_difference
+                }
+                // Come into view across a border the object was cut by.
+                Some((ix, iy, false)) => mask[iy * width + ix],
+                None => false,
+            };
+            if inside {
                 out[y * width + x] = true;
                 area += 1;
             }
@@ -502,6 +528,50 @@ fn follow(
             (acc.0 + (d.0 - s.0) / n, acc.1 + (d.1 - s.1) / n)
         });
     (area >= 30).then_some((out, moved))
+}
+
+/// A mask this close to the image border (pixels) is cut by it: the
+/// segmenter's masks stop a pixel or two short of the edge.
+const BORDER_PX: usize = 3;
+
+/// The image borders an object's mask is cut by, each with the mask's
+/// outermost column or row on that side.
+#[derive(Debug, Clone, Copy)]
+struct BorderCut {
+    left: Option<usize>,
+    right: Option<usize>,
+    top: Option<usize>,
+    bottom: Option<usize>,
+}
+
+impl BorderCut {
+    /// The previous-frame pixel a source position reads, and whether it was
+    /// seen there: beyond the mask's outermost column or row on a cut side
+    /// the position moves onto it (not seen: extrapolated into what has
+    /// come into view); elsewhere outside the image, None.
+    fn source(&self, x: f32, y: f32, width: usize, height: usize) -> Option<(usize, usize, bool)> {
+        if !x.is_finite() || !y.is_finite() {
+            return None;
+        }
+        let mut seen = true;
+        let mut axis = |v: f32, low: Option<usize>, high: Option<usize>, size: usize| {
+            let v = match (low, high) {
+                (Some(l), _) if v < l as f32 => {
+                    seen = false;
+                    l as f32
+                }
+                (_, Some(h)) if v > h as f32 => {
+                    seen = false;
+                    h as f32
+                }
+                _ => v,
+            };
+            (v >= 0.0 && v < size as f32).then_some(v as usize)
+        };
+        let ix = axis(x, self.left, self.right, width)?;
+        let iy = axis(y, self.top, self.bottom, height)?;
+        Some((ix, iy, seen))
+    }
 }
 
 impl MaskModel for LkPropagator {

@@ -102,3 +102,28 @@ fn an_object_that_leaves_the_view_ends() {
     assert!(k >= 2, "ended too early at {k}");
     assert_eq!(p.objects(), 0);
 }
+
+/// An object walking in across the right border: the part that comes into
+/// view continues the mask's outermost column, so the mask grows with the
+/// object (without that it keeps the sliver first seen: IoU 0.60 after one
+/// frame).
+#[test]
+fn an_object_walking_in_across_the_border_grows_into_view() {
+    let (bg, tex) = (tum("1305031229.528748.png"), tum("1305031234.493831.png"));
+    let mut p = LkPropagator::new(PropagatorParams::default());
+    let (rgb, mask) = render(&bg, &tex, (0.0, 0.0), (675.0, 240.0), 1.0);
+    let first = mask.iter().filter(|&&m| m).count();
+    prompt(&mut p, &rgb, &mask);
+    let mut area = first;
+    for k in 1..=10 {
+        let c = (675.0 - 8.0 * k as f32, 240.0);
+        let (rgb, truth) = render(&bg, &tex, (0.0, 0.0), c, 1.0);
+        let mut labels = vec![0u8; W * H];
+        assert_eq!(p.propagate(&rgb, W, H, &mut labels).len(), 1, "frame {k}");
+        let v = iou(&labels, &truth);
+        area = labels.iter().filter(|&&l| l == 1).count();
+        println!("frame {k}: IoU {v:.3}, {area} px");
+        assert!(v >= 0.8, "frame {k}: IoU {v}");
+    }
+    assert!(area > 3 * first, "{first} px -> {area} px");
+}

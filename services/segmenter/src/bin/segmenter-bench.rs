@@ -79,7 +79,6 @@ fn main() -> Result<()> {
     );
     println!("{:<12} {:>9} {:>9}", "stage", "p50 ms", "p99 ms");
     println!("{:<12} {:>9.2} {:>9.2}", "segmenter", p50, p99);
-    println!("propagator: no propagation backend yet (the `none` backend does no work)");
     println!("({found} dynamic-class instances found)");
     if let Some(dir) = args.out.parent() {
         std::fs::create_dir_all(dir)?;

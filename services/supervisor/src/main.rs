@@ -441,6 +441,11 @@ fn masks_eval(
         "propagator, people seen on their keyframe  mean IoU {:.3}",
         s.propagator_iou_prompted
     );
+    println!(
+        "propagator, people the segmenter found (keyframe IoU >= {})  mean IoU {:.3}",
+        supervisor::mask_eval::FOUND_IOU,
+        s.propagator_iou_found
+    );
     let offsets: Vec<String> = s
         .propagator_iou_by_offset
         .iter()

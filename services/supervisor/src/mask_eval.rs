@@ -34,9 +34,16 @@ pub struct MaskScores {
     /// Mean propagator IoU over people who were already scored on the
     /// prompting keyframe (a person entering later cannot be propagated).
     pub propagator_iou_prompted: f64,
+    /// Mean propagator IoU over people the segmenter found on the
+    /// prompting keyframe (IoU >= `FOUND_IOU` there): the propagator's own
+    /// quality, without the segmenter's misses.
+    pub propagator_iou_found: f64,
     pub segmenter_ms_p50: f64,
     pub propagator_ms_p50: f64,
 }
+
+/// A person counts as found by the segmenter at this keyframe IoU.
+pub const FOUND_IOU: f64 = 0.5;
 
 fn mean(v: &[f64]) -> f64 {
     if v.is_empty() {
@@ -77,6 +84,8 @@ pub fn evaluate(
     let mut by_offset = vec![Vec::new(); keyframe_every - 1];
     let (mut seg_ms, mut prop_ms) = (Vec::new(), Vec::new());
     let mut prompted_ids: Vec<u8> = Vec::new();
+    let mut found_ids: Vec<u8> = Vec::new();
+    let mut found_iou = Vec::new();
     let mut progress = Progress::new("masks-eval", frames.len() as u64);
     for (k, frame) in frames.iter().enumerate() {
         let rgb = image::open(&frame.rgb)
@@ -101,6 +110,11 @@ pub fn evaluate(
             propagator.prompt_with(rgb.as_raw(), w, h, &labels, &instances);
             let scores = instance_ious(&labels, gt.as_raw(), min_px);
             prompted_ids = scores.iter().map(|s| s.id).collect();
+            found_ids = scores
+                .iter()
+                .filter(|s| s.iou >= FOUND_IOU)
+                .map(|s| s.id)
+                .collect();
             seg_iou.extend(scores.iter().map(|s| s.iou));
         } else {
             propagator.propagate(rgb.as_raw(), w, h, &mut labels);
@@ -110,6 +124,9 @@ pub fn evaluate(
                 by_offset[offset - 1].push(s.iou);
                 if prompted_ids.contains(&s.id) {
                     prompted_iou.push(s.iou);
+                }
+                if found_ids.contains(&s.id) {
+                    found_iou.push(s.iou);
                 }
             }
         }
@@ -128,6 +145,7 @@ pub fn evaluate(
         propagator_samples: prop_iou.len(),
         propagator_iou_by_offset: by_offset.iter().map(|v| mean(v)).collect(),
         propagator_iou_prompted: mean(&prompted_iou),
+        propagator_iou_found: mean(&found_iou),
         segmenter_ms_p50: pipeline::stats::percentile(&seg_ms, 50.0),
         propagator_ms_p50: pipeline::stats::percentile(&prop_ms, 50.0),
     })

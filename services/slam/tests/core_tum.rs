@@ -39,8 +39,12 @@ fn load(n: usize) -> Vec<(f64, image::RgbImage, Depth)> {
 }
 
 fn system() -> System {
+    system_with(SlamParams::default())
+}
+
+fn system_with(params: SlamParams) -> System {
     System::new(
-        SlamParams::default(),
+        params,
         Camera::from_config(&CameraConfig::default(), 5000.0),
     )
 }
@@ -52,10 +56,7 @@ fn tracked(s: TrackState) -> bool {
 /// Tracks the first `n` frames: the share tracked, ATE RMSE and the system.
 fn run(params: SlamParams, n: usize) -> (f64, f64, System) {
     let data = load(n);
-    let mut sys = System::new(
-        params,
-        Camera::from_config(&CameraConfig::default(), 5000.0),
-    );
+    let mut sys = system_with(params);
     let mut trajectory = Trajectory {
         stamps: Vec::new(),
         poses: Vec::new(),
@@ -306,15 +307,12 @@ fn a_camera_that_stays_put_keeps_few_keyframes() {
 fn mapping_on_its_thread_gives_the_same_poses_as_inline() {
     let data = load(40);
     let run = |thread: bool| {
-        let mut sys = System::new(
-            SlamParams {
-                mapping_thread: thread,
-                local_ba_keyframes: 5,
-                fuse_points: true,
-                ..SlamParams::default()
-            },
-            Camera::from_config(&CameraConfig::default(), 5000.0),
-        );
+        let mut sys = system_with(SlamParams {
+            mapping_thread: thread,
+            local_ba_keyframes: 5,
+            fuse_points: true,
+            ..SlamParams::default()
+        });
         data.iter()
             .map(|(t, rgb, depth)| {
                 let r = sys.track_rgbd(rgb.as_raw(), depth.as_raw(), None, 640, 480, *t);

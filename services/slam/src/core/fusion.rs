@@ -85,7 +85,7 @@ impl Map {
     ) -> (usize, usize) {
         let kf = &self.keyframes[k];
         let pose = kf.pose_cw;
-        let centre = pose.inverse().translation.vector;
+        let centre = kf.centre();
         let (x0, x1, y0, y1) = kf.bounds;
         // Candidates: measured keypoints first (index j), then spare ones
         // (index measured + s). Replacing points below never reorders this
@@ -187,7 +187,7 @@ impl Map {
     /// Point `gone` is point `keep`: its observers measure `keep` instead
     /// (or drop the measurement where they already measure `keep`), its
     /// tracking counts add to `keep`'s, and it is culled.
-    pub(super) fn replace_point(&mut self, gone: usize, keep: usize) {
+    fn replace_point(&mut self, gone: usize, keep: usize) {
         for o in std::mem::take(&mut self.points[gone].observers) {
             let kf = &mut self.keyframes[o];
             let Some(j) = kf.points.iter().position(|&q| q == gone) else {

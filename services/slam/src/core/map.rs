@@ -101,6 +101,27 @@ pub struct MapPoint {
 }
 
 impl MapPoint {
+    /// A new point at `position`, first measured by keyframe `by` as `m`
+    /// from `distance` metres (its descriptor and scale are `m`'s).
+    pub fn new(
+        position: Vector3<f64>,
+        by: usize,
+        m: &KeyFrameObservation,
+        distance: f64,
+        colour: [u8; 3],
+    ) -> Self {
+        Self {
+            position,
+            descriptor: m.descriptor,
+            observers: vec![by],
+            visible: 1,
+            found: 1,
+            colour,
+            triangulated_in: None,
+            level0_distance: distance * m.sigma(),
+        }
+    }
+
     /// The pyramid level (of `levels`, `scale_factor` apart) the point
     /// should appear at from `distance` metres; None outside the distances
     /// its descriptor can be recognised from (with ORB-SLAM2's 20 % slack).
@@ -171,6 +192,13 @@ pub struct KeyFrame {
     /// Removed by keyframe culling: its points and edges are gone, the id
     /// stays so that other ids stay valid.
     pub culled: bool,
+}
+
+impl KeyFrame {
+    /// Its camera centre in the world.
+    pub fn centre(&self) -> Vector3<f64> {
+        self.pose_cw.inverse().translation.vector
+    }
 }
 
 impl Map {

@@ -15,7 +15,7 @@ use nalgebra::{
 use pipeline::rng::SplitMix64;
 
 use super::camera::Camera;
-use super::optimize::{is_finite_pose, optimize_pose, Observation};
+use super::optimize::{chi2_threshold, is_finite_pose, optimize_pose, Observation};
 
 /// A map point matched to an (undistorted) keypoint.
 #[derive(Debug, Clone, Copy)]
@@ -27,8 +27,6 @@ pub struct PnpMatch {
     pub info: f64,
 }
 
-/// Reprojection chi-square (2 degrees of freedom, 95 %).
-const CHI2: f64 = 5.991;
 const SAMPLE: usize = 6;
 
 /// Camera-from-world pose that best explains `matches` (RANSAC, then
@@ -101,7 +99,8 @@ fn inliers<'a>(
             return false;
         }
         let (u, v) = camera.project(&pc.coords);
-        ((u - m.u).powi(2) + (v - m.v).powi(2)) * m.info < CHI2
+        // Reprojection chi-square (2 degrees of freedom, 95 %).
+        ((u - m.u).powi(2) + (v - m.v).powi(2)) * m.info < chi2_threshold(false)
     })
 }
 
@@ -129,8 +128,8 @@ pub fn dlt_pose(camera: &Camera, matches: &[PnpMatch]) -> Option<Isometry3<f64>>
     let mut a = DMatrix::<f64>::zeros(2 * n, 12);
     for (i, m) in matches.iter().enumerate() {
         let w = (m.world - centre) * scale;
-        let x = (m.u - camera.cx) / camera.fx;
-        let y = (m.v - camera.cy) / camera.fy;
+        let ray = camera.unproject(m.u, m.v, 1.0);
+        let (x, y) = (ray.x, ray.y);
         let h = [w.x, w.y, w.z, 1.0];
         for j in 0..4 {
             a[(2 * i, j)] = h[j];

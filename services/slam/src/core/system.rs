@@ -548,11 +548,7 @@ impl System {
         frame.un.clone_from(&raw.0);
         frame.depth.clone_from(&raw.1);
         self.undo_rolling_shutter(&frame.kps, &mut frame.un, &mut frame.depth, height, motion);
-        let ids: Vec<(usize, usize)> = matched
-            .iter()
-            .enumerate()
-            .filter_map(|(k, m)| m.map(|p| (k, p)))
-            .collect();
+        let ids = matched_pairs(matched);
         let (pose, inlier) = optimize_pose(&self.camera, pose_cw, &self.observations(frame, &ids));
         let n = inlier.iter().filter(|&&b| b).count();
         let finite = is_finite_pose(&pose);
@@ -658,11 +654,7 @@ impl System {
         let mut n = 0;
         for (pass, r) in [radius, 6.0].into_iter().enumerate() {
             matched = self.match_by_projection(frame, local, &pose, r, pass == 1);
-            let ids: Vec<(usize, usize)> = matched
-                .iter()
-                .enumerate()
-                .filter_map(|(k, m)| m.map(|p| (k, p)))
-                .collect();
+            let ids = matched_pairs(&matched);
             if ids.len() < self.params.min_inliers {
                 return None;
             }
@@ -851,16 +843,13 @@ impl System {
                 let seen = self.camera.unproject(u, v, d);
                 let world = pose_wc * Point3::from(seen);
                 let m = self.measure(frame, k);
-                self.map.points.push(MapPoint {
-                    position: world.coords,
-                    descriptor: frame.descs[k],
-                    observers: vec![id],
-                    visible: 1,
-                    found: 1,
-                    colour: frame.colours[k],
-                    triangulated_in: None,
-                    level0_distance: seen.norm() * m.sigma(),
-                });
+                self.map.points.push(MapPoint::new(
+                    world.coords,
+                    id,
+                    &m,
+                    seen.norm(),
+                    frame.colours[k],
+                ));
                 observed.push(self.map.points.len() - 1);
                 measurements.push(m);
             } else {
@@ -956,6 +945,15 @@ impl System {
             .map(|(_, k)| k.pose_cw.inverse())
             .collect()
     }
+}
+
+/// (keypoint, map point) of every matched keypoint.
+fn matched_pairs(matched: &[Option<usize>]) -> Vec<(usize, usize)> {
+    matched
+        .iter()
+        .enumerate()
+        .filter_map(|(k, m)| m.map(|p| (k, p)))
+        .collect()
 }
 
 /// Binary mask of non-zero labels grown by `r` pixels (square).

@@ -12,7 +12,7 @@
 //! pyramid levels. [`super::map::Map::cull_points`] removes the ones no
 //! third keyframe confirms.
 
-use nalgebra::{Isometry3, Matrix3, Point3, RowVector4, Vector3};
+use nalgebra::{Matrix3, Point3, RowVector4, Vector3};
 
 use super::camera::Camera;
 use super::map::{KeyFrame, Map, MapPoint, SpareKeypoint};
@@ -47,7 +47,7 @@ impl Map {
             }
             // Below the depth camera's own (virtual) baseline, depth already
             // says more than the pair could (ORB-SLAM2's stereo rule).
-            let baseline = (centre(&kf1.pose_cw) - centre(&kf2.pose_cw)).norm();
+            let baseline = (kf1.centre() - kf2.centre()).norm();
             if baseline < camera.bf / camera.fx {
                 continue;
             }
@@ -62,16 +62,11 @@ impl Map {
                     continue;
                 };
                 let p = self.points.len() + created.len();
-                created.push(MapPoint {
-                    position: x,
-                    descriptor: s1.measurement.descriptor,
-                    observers: vec![id, n],
-                    visible: 1,
-                    found: 1,
-                    colour: s1.colour,
-                    triangulated_in: Some(id),
-                    level0_distance: (x - centre(&kf1.pose_cw)).norm() * s1.measurement.sigma(),
-                });
+                let mut point =
+                    MapPoint::new(x, id, &s1.measurement, (x - kf1.centre()).norm(), s1.colour);
+                point.observers.push(n);
+                point.triangulated_in = Some(id);
+                created.push(point);
                 taken[i] = Some(p);
                 taken2[j] = Some(p);
             }
@@ -104,18 +99,9 @@ impl KeyFrame {
     }
 }
 
-/// Camera centre in the world of a camera-from-world pose.
-fn centre(pose_cw: &Isometry3<f64>) -> Vector3<f64> {
-    pose_cw.inverse().translation.vector
-}
-
-/// Normalised image coordinates (z = 1) of an undistorted pixel.
-fn ray(camera: &Camera, u: f64, v: f64) -> Vector3<f64> {
-    Vector3::new(
-        (u - camera.cx) / camera.fx,
-        (v - camera.cy) / camera.fy,
-        1.0,
-    )
+/// Normalised image coordinates (z = 1) of a keypoint.
+fn ray(camera: &Camera, s: &SpareKeypoint) -> Vector3<f64> {
+    camera.unproject(s.measurement.u, s.measurement.v, 1.0)
 }
 
 /// Pairs (spare index in kf1, spare index in kf2) of keypoints with close
@@ -136,13 +122,14 @@ fn epipolar_matches(
         let c1 = t21.translation.vector;
         (c1.z > 1e-6).then(|| camera.project(&c1))
     };
+    let rays2: Vec<Vector3<f64>> = kf2.spare.iter().map(|s| ray(camera, s)).collect();
     let mut pairs = Vec::new();
     for (i, s1) in kf1.spare.iter().enumerate() {
         if taken[i].is_some() {
             continue;
         }
         let m1 = &s1.measurement;
-        let line = essential * ray(camera, m1.u, m1.v);
+        let line = essential * ray(camera, s1);
         let norm = line.x.hypot(line.y);
         if norm < 1e-12 {
             continue;
@@ -160,7 +147,7 @@ fn epipolar_matches(
                     continue;
                 }
             }
-            let off = line.dot(&ray(camera, m2.u, m2.v)).abs() / norm * camera.fx;
+            let off = line.dot(&rays2[j]).abs() / norm * camera.fx;
             if off * off > EPIPOLAR_CHI2 * sigma2 {
                 continue;
             }
@@ -190,7 +177,7 @@ fn triangulate_pair(
     scale_factor: f64,
 ) -> Option<Vector3<f64>> {
     let (m1, m2) = (&s1.measurement, &s2.measurement);
-    let (r1, r2) = (ray(camera, m1.u, m1.v), ray(camera, m2.u, m2.v));
+    let (r1, r2) = (ray(camera, s1), ray(camera, s2));
     let (w1, w2) = (
         kf1.pose_cw.rotation.inverse() * r1,
         kf2.pose_cw.rotation.inverse() * r2,
@@ -230,7 +217,7 @@ fn triangulate_pair(
     }
     // Distances from the two cameras in the ratio of the two levels'
     // scales (within 1.5 pyramid steps either way).
-    let ratio_distance = (x - centre(&kf2.pose_cw)).norm() / (x - centre(&kf1.pose_cw)).norm();
+    let ratio_distance = (x - kf2.centre()).norm() / (x - kf1.centre()).norm();
     let ratio_octave = m1.sigma() / m2.sigma();
     let slack = 1.5 * scale_factor;
     if ratio_distance * slack < ratio_octave || ratio_distance > ratio_octave * slack {
@@ -243,7 +230,7 @@ fn triangulate_pair(
 mod tests {
     use super::*;
     use crate::core::map::KeyFrameObservation;
-    use nalgebra::{Translation3, UnitQuaternion};
+    use nalgebra::{Isometry3, Translation3, UnitQuaternion};
     use pipeline::config::CameraConfig;
 
     fn camera() -> Camera {

@@ -4,7 +4,10 @@
 //! camera (a billboard at one depth per frame). A pixel shows the person
 //! when the cut-out covers it and the person is nearer than the scene there
 //! (or the scene has no depth): the RGB becomes the cut-out's, the depth the
-//! person's, the label the person's id. Everything else is left untouched,
+//! person's, the label the person's id. Narrow holes in the scene's depth
+//! (a Kinect's shadows, black screens, the band at the image's right edge
+//! that its depth camera does not see) occlude like the depth beside them,
+//! so a person is not drawn through a desk where the sensor missed it. Everything else is left untouched,
 //! byte for byte, so the ground-truth mask is exactly the set of changed
 //! pixels' owners.
 
@@ -12,6 +15,7 @@ use nalgebra::{Isometry3, Point3, Vector2, Vector3};
 use serde::Serialize;
 
 use crate::sprites::Sprite;
+use crate::walkers::Occlusion;
 
 /// Pinhole intrinsics (the images keep their own lens distortion; a
 /// cut-out's few hundred pixels do not need it).
@@ -89,6 +93,44 @@ pub struct Canvas<'a> {
     pub labels: &'a mut [u8],
     /// Depth units per metre.
     pub depth_scale: f64,
+    /// Whether the scene's depth hides people ([`Occlusion::Scene`]).
+    pub occlusion: Occlusion,
+}
+
+/// Holes in a depth row up to this many pixels wide take the depth beside
+/// them for occlusion; wider ones (out of range: far walls, sky) stay open.
+pub const HOLE_FILL_PX: usize = 64;
+
+/// The scene depth that occludes people: `depth` with each row's holes up
+/// to [`HOLE_FILL_PX`] wide filled from their valid neighbours, the farther
+/// of the two where both exist (a sensor's shadow belongs to the background
+/// beside an edge). Holes at a row's end take their one neighbour.
+pub fn occluder_depth(depth: &[u16], width: usize) -> Vec<u16> {
+    let mut out = depth.to_vec();
+    for row in out.chunks_mut(width) {
+        let mut x = 0;
+        while x < row.len() {
+            if row[x] != 0 {
+                x += 1;
+                continue;
+            }
+            let start = x;
+            while x < row.len() && row[x] == 0 {
+                x += 1;
+            }
+            let left = start.checked_sub(1).map(|i| row[i]);
+            let right = row.get(x).copied();
+            let fill = match (left, right) {
+                (Some(l), Some(r)) => l.max(r),
+                (Some(v), None) | (None, Some(v)) => v,
+                (None, None) => 0,
+            };
+            if x - start <= HOLE_FILL_PX {
+                row[start..x].fill(fill);
+            }
+        }
+    }
+    out
 }
 
 /// The depth value a person at `depth_m` writes.
@@ -102,9 +144,13 @@ impl Canvas<'_> {
     pub fn draw(&mut self, placements: &[Placement], sprites: &[Sprite]) -> Vec<usize> {
         let mut order: Vec<usize> = (0..placements.len()).collect();
         order.sort_by(|&a, &b| placements[b].depth_m.total_cmp(&placements[a].depth_m));
+        let occluders = match self.occlusion {
+            Occlusion::Scene => occluder_depth(self.depth, self.width),
+            Occlusion::None => vec![0; self.depth.len()],
+        };
         let mut visible = vec![0; placements.len()];
         for k in order {
-            visible[k] = self.draw_one(&placements[k], &sprites[placements[k].sprite]);
+            visible[k] = self.draw_one(&placements[k], &sprites[placements[k].sprite], &occluders);
         }
         // A nearer person may have covered pixels counted for a farther one.
         for (k, p) in placements.iter().enumerate() {
@@ -115,7 +161,9 @@ impl Canvas<'_> {
         visible
     }
 
-    fn draw_one(&mut self, p: &Placement, sprite: &Sprite) -> usize {
+    /// Draws one person where `occluders` (the scene's depth) is farther;
+    /// people are drawn far to near, so a nearer one paints over.
+    fn draw_one(&mut self, p: &Placement, sprite: &Sprite, occluders: &[u16]) -> usize {
         let (sw, sh) = (sprite.width() as f64, sprite.height() as f64);
         let scale = p.height_px / sh; // image pixels per sprite pixel
         if scale <= 0.0 || !scale.is_finite() {
@@ -149,7 +197,7 @@ impl Canvas<'_> {
                     continue;
                 };
                 let i = y * self.width + x;
-                let scene = self.depth[i];
+                let scene = occluders[i];
                 if scene != 0 && scene <= units {
                     continue; // the scene is in front of the person here
                 }
@@ -244,6 +292,7 @@ mod tests {
             depth: &mut depth,
             labels: &mut labels,
             depth_scale: 5000.0,
+            occlusion: Occlusion::Scene,
         };
         let visible = canvas.draw(std::slice::from_ref(&p), &sprites);
         assert!(visible[0] > 100);
@@ -258,6 +307,85 @@ mod tests {
             }
         }
         assert_eq!(visible[0], labels.iter().filter(|&&l| l == 3).count());
+    }
+
+    #[test]
+    fn narrow_depth_holes_occlude_like_their_neighbours_and_wide_ones_stay_open() {
+        let w = 200;
+        let mut row = vec![3000u16; w];
+        row[10..20].fill(0); // between 3000 and 9000: takes the farther
+        row[20..40].fill(9000);
+        row[100..100 + HOLE_FILL_PX + 1].fill(0); // too wide: stays a hole
+        row[w - 30..].fill(0); // the right-edge band: its one neighbour
+        let filled = occluder_depth(&row, w);
+        assert!(filled[10..20].iter().all(|&d| d == 9000));
+        assert!(filled[100..100 + HOLE_FILL_PX + 1].iter().all(|&d| d == 0));
+        assert!(filled[w - 30..].iter().all(|&d| d == 3000));
+        assert_eq!(filled[..10], row[..10]);
+        // A person at 1 m is hidden by the desk at 0.6 m where the band has no depth.
+        let (w, h) = (64, 48);
+        let mut depth: Vec<u16> = vec![3000; w * h];
+        for y in 0..h {
+            depth[y * w + w - 8..(y + 1) * w].fill(0);
+        }
+        let (mut rgb, mut labels) = (vec![0u8; w * h * 3], vec![0u8; w * h]);
+        let p = Placement {
+            id: 1,
+            sprite: 0,
+            mirrored: false,
+            centre_px: [w as f64 - 4.0, 24.0],
+            up_px: [0.0, -1.0],
+            height_px: 40.0,
+            depth_m: 1.0,
+        };
+        let mut canvas = Canvas {
+            width: w,
+            height: h,
+            rgb: &mut rgb,
+            depth: &mut depth,
+            labels: &mut labels,
+            depth_scale: 5000.0,
+            occlusion: Occlusion::Scene,
+        };
+        assert_eq!(canvas.draw(&[p], &people()), vec![0]);
+        assert!(depth
+            .iter()
+            .enumerate()
+            .all(|(i, &d)| d == if i % w >= w - 8 { 0 } else { 3000 }));
+    }
+
+    #[test]
+    fn without_scene_occlusion_a_person_is_drawn_whole_over_nearer_scene() {
+        let (w, h) = (64, 48);
+        let p = Placement {
+            id: 2,
+            sprite: 0,
+            mirrored: false,
+            centre_px: [32.0, 24.0],
+            up_px: [0.0, -1.0],
+            height_px: 40.0,
+            depth_m: 2.0,
+        };
+        let drawn = |occlusion| {
+            let mut depth = vec![2500u16; w * h]; // the scene at 0.5 m
+            let (mut rgb, mut labels) = (vec![0u8; w * h * 3], vec![0u8; w * h]);
+            let mut canvas = Canvas {
+                width: w,
+                height: h,
+                rgb: &mut rgb,
+                depth: &mut depth,
+                labels: &mut labels,
+                depth_scale: 5000.0,
+                occlusion,
+            };
+            let visible = canvas.draw(std::slice::from_ref(&p), &people())[0];
+            let person_depth = depth.iter().filter(|&&d| d == 10000).count();
+            (visible, person_depth)
+        };
+        assert_eq!(drawn(Occlusion::Scene), (0, 0));
+        let (visible, person_depth) = drawn(Occlusion::None);
+        assert!(visible > 300, "{visible} pixels drawn");
+        assert_eq!(person_depth, visible);
     }
 
     #[test]
@@ -283,6 +411,7 @@ mod tests {
                 depth: &mut depth,
                 labels: &mut labels,
                 depth_scale: 5000.0,
+                occlusion: Occlusion::Scene,
             };
             c.draw(&placements, &sprites);
             let centre = 24 * w + 32;

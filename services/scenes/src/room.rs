@@ -81,6 +81,7 @@ pub fn default_walks() -> WalkOptions {
         far_m: 2.0,
         height_m: 0.9,
         seed: 3,
+        occlusion: crate::walkers::Occlusion::Scene,
     }
 }
 

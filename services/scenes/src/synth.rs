@@ -22,7 +22,7 @@ use slam::trajectory::Trajectory;
 
 use crate::composite::{place, Canvas, Pinhole, Placement};
 use crate::sprites::{people, Sprite};
-use crate::walkers::{walkers, Stage, WalkOptions, Walker};
+use crate::walkers::{walkers, Occlusion, Stage, WalkOptions, Walker};
 
 #[derive(Debug, thiserror::Error)]
 pub enum SynthError {
@@ -155,6 +155,7 @@ pub fn synthesize(
             camera,
             depth_scale,
             height_m: options.height_m,
+            occlusion: options.occlusion,
         }
         .render(output)
     })?;
@@ -246,6 +247,7 @@ struct FrameJob<'a> {
     camera: &'a Pinhole,
     depth_scale: f64,
     height_m: f64,
+    occlusion: Occlusion,
 }
 
 impl FrameJob<'_> {
@@ -312,6 +314,7 @@ impl FrameJob<'_> {
                 depth: &mut depth,
                 labels: &mut labels,
                 depth_scale: self.depth_scale,
+                occlusion: self.occlusion,
             };
             canvas.draw(&placements, self.sprites)
         };

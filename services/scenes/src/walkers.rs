@@ -63,6 +63,20 @@ pub struct WalkerState {
     pub leftwards: bool,
 }
 
+/// What hides a person besides other people.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Occlusion {
+    /// The scene hides a person where its depth is nearer: people walk
+    /// through the scene's geometry, so a walk that crosses furniture
+    /// shows only what sticks out of it (a head above a desk).
+    Scene,
+    /// People pass between the camera and the scene: always drawn whole
+    /// (cut only by the image border and nearer people). The depth channel
+    /// holds the person's distance even where the scene behind was nearer.
+    None,
+}
+
 /// What a scene asks for.
 #[derive(Debug, Clone, Serialize)]
 pub struct WalkOptions {
@@ -73,6 +87,7 @@ pub struct WalkOptions {
     /// Height of the person cut-out in the world (metres).
     pub height_m: f64,
     pub seed: u64,
+    pub occlusion: Occlusion,
 }
 
 impl Default for WalkOptions {
@@ -84,6 +99,7 @@ impl Default for WalkOptions {
             far_m: 1.4,
             height_m: 0.75,
             seed: 1,
+            occlusion: Occlusion::Scene,
         }
     }
 }

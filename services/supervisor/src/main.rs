@@ -135,6 +135,11 @@ enum Command {
         /// Random seed: the same seed gives the same scene.
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// What hides people: `scene` (nearer scene depth; walks that cross
+        /// furniture show only what sticks out) or `none` (people pass
+        /// between the camera and the scene, drawn whole).
+        #[arg(long, value_enum, default_value_t = OcclusionArg::Scene)]
+        occlusion: OcclusionArg,
         /// Synthesise only the first N frames.
         #[arg(long)]
         limit: Option<usize>,
@@ -159,9 +164,18 @@ enum Command {
         /// Print the scores as JSON on stdout.
         #[arg(long)]
         json: bool,
+        /// Write each frame's predicted labels (NNNN.png) and scores.csv here.
+        #[arg(long)]
+        save: Option<PathBuf>,
         #[arg(long, default_value = "configs/pipeline.toml")]
         config: PathBuf,
     },
+}
+
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum OcclusionArg {
+    Scene,
+    None,
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -312,6 +326,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             far,
             height,
             seed,
+            occlusion,
             limit,
             config,
         } => {
@@ -322,6 +337,10 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                 far_m: far,
                 height_m: height,
                 seed,
+                occlusion: match occlusion {
+                    OcclusionArg::Scene => scenes::walkers::Occlusion::Scene,
+                    OcclusionArg::None => scenes::walkers::Occlusion::None,
+                },
             };
             synth(&input, &output, &options, limit, &config).map(|()| ExitCode::SUCCESS)
         }
@@ -331,9 +350,18 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             min_px,
             limit,
             json,
+            save,
             config,
-        } => masks_eval(&dataset, keyframe_every, min_px, limit, json, &config)
-            .map(|()| ExitCode::SUCCESS),
+        } => masks_eval(
+            &dataset,
+            keyframe_every,
+            min_px,
+            limit,
+            json,
+            save.as_deref(),
+            &config,
+        )
+        .map(|()| ExitCode::SUCCESS),
     }
 }
 
@@ -414,10 +442,11 @@ fn masks_eval(
     min_px: usize,
     limit: Option<usize>,
     json: bool,
+    save: Option<&std::path::Path>,
     config: &std::path::Path,
 ) -> Result<()> {
     let cfg = PipelineConfig::load(config)?;
-    let s = supervisor::mask_eval::evaluate(dataset, &cfg, keyframe_every, min_px, limit)?;
+    let s = supervisor::mask_eval::evaluate(dataset, &cfg, keyframe_every, min_px, limit, save)?;
     if json {
         println!("{}", serde_json::to_string_pretty(&s)?);
         return Ok(());

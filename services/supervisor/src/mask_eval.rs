@@ -7,6 +7,7 @@
 //! with a fixed keyframe interval. Scores are per ground-truth person, see
 //! [`scenes::truth`].
 
+use std::io::Write;
 use std::path::Path;
 
 use anyhow::{bail, Context, Result};
@@ -14,7 +15,7 @@ use camera_reader::source::{tum_folder, MaskList};
 use pipeline::config::PipelineConfig;
 use pipeline::progress::Progress;
 use propagator::propagate::{LkPropagator, PropagatorParams};
-use scenes::truth::instance_ious;
+use scenes::truth::{instance_ious, InstanceIou};
 use segmenter::onnx::{init_runtime, YoloSeg, YoloSettings};
 use serde::Serialize;
 
@@ -54,12 +55,16 @@ fn mean(v: &[f64]) -> f64 {
 }
 
 /// Scores segmenter and propagator on `dataset` (a `dynslam synth` folder).
+/// With `save`, every frame's predicted instance labels go there as
+/// `NNNN.png` (0: none) with `scores.csv` (one row per scored person), to
+/// see where masks fail.
 pub fn evaluate(
     dataset: &Path,
     config: &PipelineConfig,
     keyframe_every: usize,
     min_px: usize,
     limit: Option<usize>,
+    save: Option<&Path>,
 ) -> Result<MaskScores> {
     if keyframe_every < 2 {
         bail!("--keyframe-every {keyframe_every}: must be at least 2 (a keyframe and a propagated frame)");
@@ -86,6 +91,7 @@ pub fn evaluate(
     let mut prompted_ids: Vec<u8> = Vec::new();
     let mut found_ids: Vec<u8> = Vec::new();
     let mut found_iou = Vec::new();
+    let mut saved = save.map(SavedMasks::create).transpose()?;
     let mut progress = Progress::new("masks-eval", frames.len() as u64);
     for (k, frame) in frames.iter().enumerate() {
         let rgb = image::open(&frame.rgb)
@@ -109,6 +115,9 @@ pub fn evaluate(
             seg_ms.push(t.elapsed().as_secs_f64() * 1e3);
             propagator.prompt_with(rgb.as_raw(), w, h, &labels, &instances);
             let scores = instance_ious(&labels, gt.as_raw(), min_px);
+            if let Some(saved) = saved.as_mut() {
+                saved.write(k, offset, w, h, &labels, &scores)?;
+            }
             prompted_ids = scores.iter().map(|s| s.id).collect();
             found_ids = scores
                 .iter()
@@ -119,7 +128,11 @@ pub fn evaluate(
         } else {
             propagator.propagate(rgb.as_raw(), w, h, &mut labels);
             prop_ms.push(t.elapsed().as_secs_f64() * 1e3);
-            for s in instance_ious(&labels, gt.as_raw(), min_px) {
+            let scores = instance_ious(&labels, gt.as_raw(), min_px);
+            if let Some(saved) = saved.as_mut() {
+                saved.write(k, offset, w, h, &labels, &scores)?;
+            }
+            for s in scores {
                 prop_iou.push(s.iou);
                 by_offset[offset - 1].push(s.iou);
                 if prompted_ids.contains(&s.id) {
@@ -133,6 +146,9 @@ pub fn evaluate(
         progress.inc();
     }
     progress.finish();
+    if let Some(saved) = saved.as_mut() {
+        saved.finish()?;
+    }
     seg_ms.sort_by(f64::total_cmp);
     prop_ms.sort_by(f64::total_cmp);
     Ok(MaskScores {
@@ -149,4 +165,55 @@ pub fn evaluate(
         segmenter_ms_p50: pipeline::stats::percentile(&seg_ms, 50.0),
         propagator_ms_p50: pipeline::stats::percentile(&prop_ms, 50.0),
     })
+}
+
+/// `masks-eval --save`: predicted labels per frame and a score table.
+struct SavedMasks {
+    dir: std::path::PathBuf,
+    scores: std::io::BufWriter<std::fs::File>,
+}
+
+impl SavedMasks {
+    fn create(dir: &Path) -> Result<Self> {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        let path = dir.join("scores.csv");
+        let file =
+            std::fs::File::create(&path).with_context(|| format!("creating {}", path.display()))?;
+        let mut scores = std::io::BufWriter::new(file);
+        writeln!(scores, "frame,after_keyframe,person,pixels,iou")?;
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            scores,
+        })
+    }
+
+    fn write(
+        &mut self,
+        frame: usize,
+        offset: usize,
+        w: usize,
+        h: usize,
+        labels: &[u8],
+        scores: &[InstanceIou],
+    ) -> Result<()> {
+        let path = self.dir.join(format!("{frame:04}.png"));
+        image::GrayImage::from_raw(w as u32, h as u32, labels.to_vec())
+            .context("label image size")?
+            .save(&path)
+            .with_context(|| format!("writing {}", path.display()))?;
+        for s in scores {
+            writeln!(
+                self.scores,
+                "{frame},{offset},{},{},{:.4}",
+                s.id, s.pixels, s.iou
+            )?;
+        }
+        Ok(())
+    }
+
+    fn finish(&mut self) -> Result<()> {
+        self.scores
+            .flush()
+            .with_context(|| format!("writing {}", self.dir.join("scores.csv").display()))
+    }
 }

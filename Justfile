@@ -5,6 +5,7 @@ set shell := ["bash", "-euo", "pipefail", "-c"]
 shared := justfile_directory() + "/../shared"
 tum := shared + "/data/tum/rgbd_dataset_freiburg1_rpy_first300"
 people := ".cache/synth/fr1_rpy_people"
+people_front := ".cache/synth/fr1_rpy_people_front"
 
 # Build every service (release: the pipeline is only meaningful optimised).
 build:
@@ -83,18 +84,26 @@ bench-orb dataset=tum *args="":
     cargo build --release -p slam --features kornia --bin slam-bench --target-dir target/kornia
     ./target/kornia/release/slam-bench "{{dataset}}" --extractor kornia --out bench-results/slam_trajectory_kornia.txt {{args}}
 
-# Mask quality against ground truth on a synthesised sequence (made first if missing): segmenter and propagator IoU.
+# Mask quality (segmenter, propagator IoU) on synth-people: people passing in front of the scene, then hidden by it.
 eval-masks: build setup synth-people
+    @echo "== people passing in front of the scene ({{people_front}})"
+    ./target/release/dynslam masks-eval {{people_front}}
+    @echo "== people walking through the scene's geometry, hidden by it ({{people}})"
     ./target/release/dynslam masks-eval {{people}}
 
-# People walking through the shared fr1_rpy sequence (3 people, seed 5), synthesised once into .cache/synth.
+# People in the shared fr1_rpy sequence (3, seed 5) into .cache/synth: hidden by the nearer scene, and passing in front of it.
 synth-people: build
     #!/usr/bin/env bash
     set -euo pipefail
-    if [ ! -f "{{people}}/objects.json" ]; then
-        rm -rf "{{people}}"
-        ./target/release/dynslam synth "{{tum}}" "{{people}}" --objects 3 --seed 5
-    fi
+    make() {
+        # objects.json records the options; one without "occlusion" is from an older synth.
+        if ! grep -qs '"occlusion"' "$1/objects.json"; then
+            rm -rf "$1"
+            ./target/release/dynslam synth "{{tum}}" "$1" --objects 3 --seed 5 --occlusion "$2"
+        fi
+    }
+    make "{{people}}" scene
+    make "{{people_front}}" none
 
 # Ablation table (no masks, ground-truth masks, segmenter every frame, product, blackout) on a dynamic sequence (default: synth-people).
 eval-dynamic dataset="" *args="": build setup

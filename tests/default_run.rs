@@ -173,7 +173,7 @@ fn default_run_renders_the_scene_runs_every_service_and_writes_the_report() {
 
     // Mask quality of the real models on the first 45 frames (4 keyframes):
     // on this scene the targets hold (segmenter 0.886, propagator
-    // 0.821 when written; fr1's synthesised people do not reach them, README).
+    // 0.821 when written; fr1's are checked in tests/synth.rs).
     let o = dynslam_in_repo(&[
         "masks-eval",
         scene.to_str().unwrap(),

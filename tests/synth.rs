@@ -192,7 +192,7 @@ fn bad_synth_options_and_inputs_are_named() {
 /// passing in front of the scene (`--occlusion none`, what `just
 /// eval-masks` reports first): real YOLOv8n-seg on keyframes (IoU >= 0.8),
 /// the LK propagator on the 10 frames after each (IoU >= 0.7 over the people
-/// present on the keyframe; 0.830 / 0.754 when written). `--save` writes
+/// present on the keyframe; 0.830 / 0.740 when written). `--save` writes
 /// every frame's labels and the per-person scores.
 #[test]
 fn masks_on_people_passing_in_front_of_the_tum_scene_meet_the_targets() {

@@ -6,10 +6,8 @@
 //! least squares on the inliers) carries the mask, and the inliers' residual
 //! motion, interpolated over the object (inverse-distance weights on a coarse
 //! grid), lets parts that move differently (arms, legs) follow. An object
-//! whose points are mostly lost coasts: its mask moves on at its last image
-//! motion for up to [`MAX_COAST_FRAMES`] frames (a person turning round, a
-//! blurred frame, a passer-by in front), then ends; one that leaves the
-//! view ends at once. The next segmenter result prompts afresh. Like SAM 2's memory, it propagates only
+//! whose points are mostly lost, or that leaves the view, ends; the next
+//! segmenter result prompts afresh. Like SAM 2's memory, it propagates only
 //! the instances it was prompted with.
 
 use anyhow::Result;
@@ -27,8 +25,7 @@ pub struct PropagatorParams {
     pub grid_step: usize,
     /// Keep a point when tracking it back lands within this many pixels.
     pub max_forward_backward: f32,
-    /// An object is lost (coasts, then ends) when fewer than this fraction
-    /// of its points track.
+    /// An object ends when fewer than this fraction of its points track.
     pub min_tracked_fraction: f32,
     /// RANSAC inlier distance (pixels).
     pub inlier_px: f32,
@@ -175,39 +172,6 @@ struct Object {
     /// Image motion of the object in the last frame (pixels), the starting
     /// guess for tracking it into the next.
     motion: (f32, f32),
-    /// Frames in a row the object could not be tracked (it coasts).
-    lost_for: usize,
-}
-
-/// A lost object's mask moves on at its last motion for this many frames
-/// before it ends: dropping a person who is still there unmasks them for
-/// the SLAM until the next keyframe, while a mask that coasts a few frames
-/// over background only costs it a few features.
-pub const MAX_COAST_FRAMES: usize = 3;
-
-/// What following an object into a new frame found.
-enum Followed {
-    Moved {
-        mask: Vec<bool>,
-        motion: (f32, f32),
-    },
-    /// Too few points tracked, or no consistent motion or appearance.
-    Lost,
-    LeftView,
-}
-
-/// `mask` moved by `motion` rounded to whole pixels (what leaves the image
-/// is dropped).
-fn shifted(mask: &[bool], width: usize, height: usize, motion: (f32, f32)) -> Vec<bool> {
-    let (dx, dy) = (motion.0.round() as isize, motion.1.round() as isize);
-    let mut out = vec![false; mask.len()];
-    for (i, _) in mask.iter().enumerate().filter(|(_, &m)| m) {
-        let (x, y) = ((i % width) as isize + dx, (i / width) as isize + dy);
-        if (0..width as isize).contains(&x) && (0..height as isize).contains(&y) {
-            out[y as usize * width + x as usize] = true;
-        }
-    }
-    out
 }
 
 /// The `lk` propagation backend.
@@ -253,7 +217,6 @@ impl LkPropagator {
                 instance: *inst,
                 mask: labels.iter().map(|&l| l as usize == i + 1).collect(),
                 motion: (0.0, 0.0),
-                lost_for: 0,
             })
             .filter(|o| o.mask.iter().any(|&m| m))
             .collect();
@@ -291,22 +254,13 @@ impl LkPropagator {
         let params = self.params;
         let mut kept = Vec::new();
         for mut obj in std::mem::take(&mut self.objects) {
-            match follow(&prev, &cur, &obj.mask, obj.motion, width, height, &params) {
-                Followed::Moved { mask, motion } => {
-                    obj.mask = mask;
-                    obj.motion = motion;
-                    obj.lost_for = 0;
-                }
-                Followed::Lost if obj.lost_for < MAX_COAST_FRAMES => {
-                    obj.mask = shifted(&obj.mask, width, height, obj.motion);
-                    obj.lost_for += 1;
-                    if !obj.mask.iter().any(|&m| m) {
-                        continue; // coasted out of the view
-                    }
-                }
-                Followed::Lost | Followed::LeftView => continue,
+            if let Some((mask, motion)) =
+                follow(&prev, &cur, &obj.mask, obj.motion, width, height, &params)
+            {
+                obj.mask = mask;
+                obj.motion = motion;
+                kept.push(obj);
             }
-            kept.push(obj);
         }
         self.objects = kept;
         self.prev = Some(cur);
@@ -394,7 +348,8 @@ fn sample_points(
     pts
 }
 
-/// The object's mask in the new frame and its image motion, or why not.
+/// The object's mask in the new frame and its image motion, or `None` when
+/// it is lost.
 fn follow(
     prev: &Pyramid,
     cur: &Pyramid,
@@ -403,14 +358,14 @@ fn follow(
     width: usize,
     height: usize,
     p: &PropagatorParams,
-) -> Followed {
+) -> Option<(Vec<bool>, (f32, f32))> {
     let mut pts = sample_points(mask, width, height, p.grid_step, p.lk.radius);
     if pts.len() < 6 {
         // A thin or small object: its window overlaps the background anyway.
         pts = sample_points(mask, width, height, p.grid_step, 0);
     }
     if pts.len() < 6 {
-        return Followed::Lost;
+        return None;
     }
     let fwd = track(prev, cur, &pts, motion, p.lk);
     let ok: Vec<usize> = (0..pts.len()).filter(|&i| fwd[i].is_some()).collect();
@@ -427,14 +382,10 @@ fn follow(
         }
     }
     if (src.len() as f32) < p.min_tracked_fraction * pts.len() as f32 || src.len() < 6 {
-        return Followed::Lost;
+        return None;
     }
-    let Some((affine, inliers)) = robust_affine(&src, &dst, p.inlier_px) else {
-        return Followed::Lost;
-    };
-    let Some(inv) = affine.inverse() else {
-        return Followed::Lost;
-    };
+    let (affine, inliers) = robust_affine(&src, &dst, p.inlier_px)?;
+    let inv = affine.inverse()?;
     // Residual motion of the inliers at their new positions.
     let residuals: Vec<((f32, f32), (f32, f32))> = src
         .iter()
@@ -497,7 +448,7 @@ fn follow(
         None => ((by1 + margin).ceil().max(0.0) as usize).min(height),
     };
     if tx0 >= tx1 || ty0 >= ty1 {
-        return Followed::LeftView;
+        return None; // left the view
     }
     // Residual field on a coarse grid over the target region (IDW).
     const CELL: usize = 8;
@@ -576,13 +527,7 @@ fn follow(
         .fold((0.0, 0.0), |acc, ((s, d), _)| {
             (acc.0 + (d.0 - s.0) / n, acc.1 + (d.1 - s.1) / n)
         });
-    if area < 30 {
-        return Followed::Lost;
-    }
-    Followed::Moved {
-        mask: out,
-        motion: moved,
-    }
+    (area >= 30).then_some((out, moved))
 }
 
 /// A mask this close to the image border (pixels) is cut by it: the

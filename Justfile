@@ -95,15 +95,15 @@ eval-masks: build setup synth-people
 synth-people: build
     #!/usr/bin/env bash
     set -euo pipefail
-    make() {
+    synth_once() {
         # objects.json records the options; one without "occlusion" is from an older synth.
         if ! grep -qs '"occlusion"' "$1/objects.json"; then
             rm -rf "$1"
             ./target/release/dynslam synth "{{tum}}" "$1" --objects 3 --seed 5 --occlusion "$2"
         fi
     }
-    make "{{people}}" scene
-    make "{{people_front}}" none
+    synth_once "{{people}}" scene
+    synth_once "{{people_front}}" none
 
 # Ablation table (no masks, ground-truth masks, segmenter every frame, product, blackout) on a dynamic sequence (default: synth-people).
 eval-dynamic dataset="" *args="": build setup

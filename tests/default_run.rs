@@ -183,11 +183,7 @@ fn default_run_renders_the_scene_runs_every_service_and_writes_the_report() {
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let scores: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    let score = |key: &str| {
-        scores[key]
-            .as_f64()
-            .unwrap_or_else(|| panic!("{key}: {scores}"))
-    };
+    let score = |key: &str| json_f64(&scores, key);
     assert!(score("segmenter_iou") >= 0.8, "{scores}");
     assert!(score("propagator_iou") >= 0.7, "{scores}");
     assert!(

@@ -219,11 +219,7 @@ fn masks_on_people_passing_in_front_of_the_tum_scene_meet_the_targets() {
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let scores: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    let score = |key: &str| {
-        scores[key]
-            .as_f64()
-            .unwrap_or_else(|| panic!("{key}: {scores}"))
-    };
+    let score = |key: &str| json_f64(&scores, key);
     assert!(score("segmenter_iou") >= 0.8, "{scores}");
     assert!(score("propagator_iou_prompted") >= 0.7, "{scores}");
     assert!(score("segmenter_samples") >= 20.0, "{scores}");

@@ -45,6 +45,13 @@ pub fn eval_json(gt: &Path, est: &Path, extra: &[&str]) -> serde_json::Value {
     serde_json::from_slice(&out.stdout).unwrap()
 }
 
+/// `key` of a JSON summary as a number (panics naming the key and the summary).
+pub fn json_f64(summary: &serde_json::Value, key: &str) -> f64 {
+    summary[key]
+        .as_f64()
+        .unwrap_or_else(|| panic!("{key}: {summary}"))
+}
+
 pub fn shared_tum() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../shared/data/tum/rgbd_dataset_freiburg1_rpy_first300")

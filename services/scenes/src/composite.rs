@@ -7,9 +7,9 @@
 //! person's, the label the person's id. Narrow holes in the scene's depth
 //! (a Kinect's shadows, black screens, the band at the image's right edge
 //! that its depth camera does not see) occlude like the depth beside them,
-//! so a person is not drawn through a desk where the sensor missed it. Everything else is left untouched,
-//! byte for byte, so the ground-truth mask is exactly the set of changed
-//! pixels' owners.
+//! so a person is not drawn through a desk where the sensor missed it.
+//! Everything else is left untouched, byte for byte, so the ground-truth
+//! mask is exactly the set of changed pixels' owners.
 
 use nalgebra::{Isometry3, Point3, Vector2, Vector3};
 use serde::Serialize;

@@ -114,10 +114,15 @@ pub fn evaluate(
             let instances = segmenter.segment(rgb.as_raw(), w, h, &mut labels)?;
             seg_ms.push(t.elapsed().as_secs_f64() * 1e3);
             propagator.prompt_with(rgb.as_raw(), w, h, &labels, &instances);
-            let scores = instance_ious(&labels, gt.as_raw(), min_px);
-            if let Some(saved) = saved.as_mut() {
-                saved.write(k, offset, w, h, &labels, &scores)?;
-            }
+        } else {
+            propagator.propagate(rgb.as_raw(), w, h, &mut labels);
+            prop_ms.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+        let scores = instance_ious(&labels, gt.as_raw(), min_px);
+        if let Some(saved) = saved.as_mut() {
+            saved.write(k, offset, w, h, &labels, &scores)?;
+        }
+        if offset == 0 {
             prompted_ids = scores.iter().map(|s| s.id).collect();
             found_ids = scores
                 .iter()
@@ -126,12 +131,6 @@ pub fn evaluate(
                 .collect();
             seg_iou.extend(scores.iter().map(|s| s.iou));
         } else {
-            propagator.propagate(rgb.as_raw(), w, h, &mut labels);
-            prop_ms.push(t.elapsed().as_secs_f64() * 1e3);
-            let scores = instance_ious(&labels, gt.as_raw(), min_px);
-            if let Some(saved) = saved.as_mut() {
-                saved.write(k, offset, w, h, &labels, &scores)?;
-            }
             for s in scores {
                 prop_iou.push(s.iou);
                 by_offset[offset - 1].push(s.iou);
@@ -197,10 +196,14 @@ impl SavedMasks {
         scores: &[InstanceIou],
     ) -> Result<()> {
         let path = self.dir.join(format!("{frame:04}.png"));
-        image::GrayImage::from_raw(w as u32, h as u32, labels.to_vec())
-            .context("label image size")?
-            .save(&path)
-            .with_context(|| format!("writing {}", path.display()))?;
+        image::save_buffer(
+            &path,
+            labels,
+            w as u32,
+            h as u32,
+            image::ExtendedColorType::L8,
+        )
+        .with_context(|| format!("writing {}", path.display()))?;
         for s in scores {
             writeln!(
                 self.scores,

@@ -11,7 +11,8 @@ fn id(tag: &str) -> String {
     format!("{tag}{}", std::process::id())
 }
 
-const SCRIPTED: &str = "[services.slam]\nbackend = \"scripted\"\n";
+const SCRIPTED: &str = "[services.slam]\nbackend = \"scripted\"\n\
+     [services.segmenter]\nbackend = \"none\"\n[services.propagator]\nbackend = \"none\"\n";
 
 /// Runs a 12-frame copy of the shared sequence after `damage`, expecting the
 /// run to complete with frame 5 skipped for the reason `expect` names.
@@ -200,13 +201,15 @@ fn worker_that_exits_at_start_is_given_up_on_and_the_run_goes_on_unmasked() {
         &dir,
         "[services.slam]\nbackend = \"scripted\"\n\
          [services.segmenter]\ncommand = [\"/bin/sh\", \"-c\", \"echo 'ERROR segmenter: model file missing' >&2; exit 3\", \"sh\"]\n\
+         [services.propagator]\nbackend = \"none\"\n\
          [supervisor]\nrestart_backoff_initial_ms = 10\nrestart_backoff_max_ms = 40\nrestart_limit = 3\n",
     );
     let run = run(&tum, &config, &dir.join("runs"), &id("deadworker"), &[]);
     let stderr = run.stderr();
-    assert!(
-        run.success(),
-        "a dead segmenter must not stop the run:\n{stderr}"
+    assert_eq!(
+        run.output.status.code(),
+        Some(3),
+        "a dead segmenter does not stop the run, it degrades it (exit 3):\n{stderr}"
     );
     assert!(stderr.contains("segmenter died 4 times"), "{stderr}");
     assert!(stderr.contains("giving up on it"), "{stderr}");
@@ -232,6 +235,7 @@ fn slam_that_exits_at_start_fails_the_run_with_its_name() {
     let config = write_config(
         &dir,
         "[services.slam]\ncommand = [\"/bin/false\"]\n\
+         [services.segmenter]\nbackend = \"none\"\n[services.propagator]\nbackend = \"none\"\n\
          [supervisor]\nrestart_backoff_initial_ms = 10\nrestart_backoff_max_ms = 40\nrestart_limit = 2\n",
     );
     let run = expect_failure(

@@ -33,13 +33,13 @@ fn default_run_renders_the_scene_runs_every_service_and_writes_the_report() {
     let dir = scratch("default-run");
     let out = dir.join("runs");
     let id = format!("default{}", std::process::id());
-    let o = dynslam_in_repo(&[
-        "run",
-        "--output-dir",
-        out.to_str().unwrap(),
-        "--run-id",
-        &id,
-    ]);
+    // From a folder outside the repo: the built-in config, the models and
+    // ONNX Runtime are found from the binary's place, not the working directory.
+    let o = Command::new(dynslam())
+        .current_dir(&dir)
+        .args(["run", "--output-dir", "runs", "--run-id", &id])
+        .output()
+        .unwrap();
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{stderr}");
     assert!(
@@ -98,16 +98,30 @@ fn default_run_renders_the_scene_runs_every_service_and_writes_the_report() {
         );
     }
     for (png, size) in [
-        ("trajectory.png", (840, 420)),
-        ("ate_over_time.png", (900, 260)),
-        ("mask_iou.png", (900, 260)),
-        ("masks.png", (960, 480)),
+        ("trajectory.png", (1100, 520)),
+        ("ate_over_time.png", (900, 320)),
+        ("mask_iou.png", (900, 320)),
+        ("masks.png", (960, 64 + 480)),
     ] {
         assert_eq!(png_size(&run_dir.join("plots").join(png)), size, "{png}");
     }
     // One latency histogram per stage that ran (end to end, track, SLAM's
-    // feature extraction, segmenter, propagator, decode).
-    assert_eq!(png_size(&run_dir.join("plots/latency.png")), (900, 6 * 160));
+    // feature extraction, segmenter, propagator, decode) under a title.
+    assert_eq!(
+        png_size(&run_dir.join("plots/latency.png")),
+        (900, 40 + 6 * 200)
+    );
+    // The report names the backends, the camera and the world frame.
+    for needle in [
+        "backends: SLAM `orb-rgbd`, segmenter `yolov8-seg`, propagator `lk`",
+        "Camera: config",
+        "optical frame of the camera at the first tracked frame",
+    ] {
+        assert!(
+            report.contains(needle),
+            "report lacks '{needle}':\n{report}"
+        );
+    }
     // SLAM's own steps are in frames.csv and the latency summary.
     assert!(rows
         .iter()
@@ -227,7 +241,8 @@ fn ground_truth_backend_without_masks_is_named_and_the_run_goes_on_unmasked() {
     let config = write_config(
         &dir,
         "[services.slam]\nbackend = \"scripted\"\nkeyframe_every = 2\n\
-         [services.segmenter]\nbackend = \"ground-truth\"\n",
+         [services.segmenter]\nbackend = \"ground-truth\"\n\
+         [services.propagator]\nbackend = \"none\"\n",
     );
     let id = format!("gtbackend{}", std::process::id());
     let r = run(&tum, &config, &dir.join("runs"), &id, &[]);

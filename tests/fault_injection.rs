@@ -82,7 +82,8 @@ fn kill_any_service_at_any_moment_and_the_run_completes() {
     let config = write_config(
         &dir,
         "[services.slam]\nbackend = \"scripted\"\nkeyframe_every = 5\nwork_ms = 30\n\
-         [services.segmenter]\nwork_ms = 3\n\
+         [services.segmenter]\nbackend = \"none\"\nwork_ms = 3\n\
+         [services.propagator]\nbackend = \"none\"\n\
          [supervisor]\nrestart_backoff_initial_ms = 20\nrestart_backoff_max_ms = 160\nrestart_limit = 100\n",
     );
     let tum = shared_tum();

@@ -12,7 +12,7 @@ fn every_frame_reaches_slam_once_in_order_routed_by_the_keyframe_flag() {
     let config = write_config(
         &dir,
         &format!(
-            "[services.slam]\nbackend = \"scripted\"\nkeyframe_every = 7\nseen_log = \"{}\"\n",
+            "[services.slam]\nbackend = \"scripted\"\nkeyframe_every = 7\nseen_log = \"{}\"\n{NO_MASK_MODELS}",
             seen.display()
         ),
     );
@@ -129,7 +129,7 @@ fn realtime_mode_counts_every_frame_as_tracked_or_dropped() {
     // SLAM slower than the camera: frames must be dropped, and reported.
     let config = write_config(
         &dir,
-        "[services.slam]\nbackend = \"scripted\"\nwork_ms = 60\n",
+        &format!("[services.slam]\nbackend = \"scripted\"\nwork_ms = 60\n{NO_MASK_MODELS}"),
     );
     let run = run(
         &shared_tum(),
@@ -166,7 +166,7 @@ fn sigint_and_sigterm_stop_the_run_cleanly_and_keep_what_was_done() {
         let run_id = format!("sig{tag}{}", std::process::id());
         let config = write_config(
             &dir,
-            "[services.slam]\nbackend = \"scripted\"\nwork_ms = 20\n",
+            &format!("[services.slam]\nbackend = \"scripted\"\nwork_ms = 20\n{NO_MASK_MODELS}"),
         );
         let child = std::process::Command::new(dynslam())
             .arg("run")
@@ -241,7 +241,7 @@ fn image_folder_source_plays_without_depth() {
     }
     let config = write_config(
         &dir,
-        "[source]\nkind = \"images\"\n[services.slam]\nbackend = \"scripted\"\n",
+        &format!("[source]\nkind = \"images\"\n[services.slam]\nbackend = \"scripted\"\n{NO_MASK_MODELS}"),
     );
     let run = run(
         &images,

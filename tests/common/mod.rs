@@ -65,6 +65,11 @@ pub fn scratch(name: &str) -> PathBuf {
     dir
 }
 
+/// Config lines that replace both mask workers by the `none` test double
+/// (the built-in defaults run the real models).
+pub const NO_MASK_MODELS: &str =
+    "[services.segmenter]\nbackend = \"none\"\n[services.propagator]\nbackend = \"none\"\n";
+
 /// Writes a pipeline config; `extra` is appended TOML.
 pub fn write_config(dir: &Path, extra: &str) -> PathBuf {
     let path = dir.join("pipeline.toml");
@@ -113,18 +118,8 @@ pub fn run(dataset: &Path, config: &Path, out: &Path, run_id: &str, extra: &[&st
 pub type Row = std::collections::HashMap<String, String>;
 
 pub fn read_rows(run_dir: &Path) -> Vec<Row> {
-    let text = std::fs::read_to_string(run_dir.join("frames.csv")).unwrap();
-    let mut lines = text.lines();
-    let header: Vec<String> = lines.next().unwrap().split(',').map(String::from).collect();
-    lines
-        .map(|l| {
-            header
-                .iter()
-                .cloned()
-                .zip(l.splitn(header.len(), ',').map(String::from))
-                .collect()
-        })
-        .collect()
+    let mut reader = csv::Reader::from_path(run_dir.join("frames.csv")).unwrap();
+    reader.deserialize().map(|r| r.unwrap()).collect()
 }
 
 /// Asserts that nothing of the run is left in shared memory.

@@ -10,7 +10,7 @@
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
 #[serde(deny_unknown_fields)]
 pub struct PipelineConfig {
     #[serde(default)]
@@ -50,6 +50,34 @@ pub struct CameraConfig {
 impl CameraConfig {
     /// Accepted rolling-shutter readout times (seconds).
     pub const READOUT_S: std::ops::Range<f64> = 0.0..0.2;
+
+    /// Checks that the values describe a camera; the error names the key.
+    pub fn validate(&self) -> Result<(), String> {
+        for (key, f) in [("fx", self.fx), ("fy", self.fy)] {
+            if !(f.is_finite() && f > 0.0 && f < 1e5) {
+                return Err(format!(
+                    "key `{key}`: {f} is not a focal length in pixels (0 < f < 100000)"
+                ));
+            }
+        }
+        for (key, c) in [("cx", self.cx), ("cy", self.cy)] {
+            if !(c.is_finite() && (0.0..1e5).contains(&c)) {
+                return Err(format!(
+                    "key `{key}`: {c} is not a principal point in pixels (0 <= c < 100000)"
+                ));
+            }
+        }
+        if !self.distortion.iter().all(|d| d.is_finite()) {
+            return Err("key `distortion`: k1 k2 p1 p2 k3 must be finite numbers".into());
+        }
+        if !Self::READOUT_S.contains(&self.readout_s) {
+            return Err(format!(
+                "key `readout_s`: {} is not a rolling-shutter readout time in seconds (0 <= s < 0.2; 0 for a global shutter)",
+                self.readout_s
+            ));
+        }
+        Ok(())
+    }
 }
 
 impl Default for CameraConfig {
@@ -107,6 +135,9 @@ pub struct RunConfig {
     /// Largest frame the shared-memory segments are sized for.
     pub max_width: u32,
     pub max_height: u32,
+    /// Fail the run (exit 1) instead of finishing it degraded (exit 3) when
+    /// a mask worker is given up on (missing model, crash loop).
+    pub require_masks: bool,
 }
 
 impl Default for RunConfig {
@@ -117,6 +148,7 @@ impl Default for RunConfig {
             output_dir: PathBuf::from("runs"),
             max_width: 640,
             max_height: 480,
+            require_masks: false,
         }
     }
 }
@@ -217,7 +249,7 @@ impl Default for SupervisorConfig {
     }
 }
 
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct ServicesConfig {
     #[serde(rename = "camera-reader")]
@@ -225,6 +257,52 @@ pub struct ServicesConfig {
     pub segmenter: ServiceConfig,
     pub propagator: ServiceConfig,
     pub slam: ServiceConfig,
+}
+
+/// The product: the RGB-D SLAM core, YOLOv8-seg on keyframes, LK between
+/// them (the same values as the shipped `configs/pipeline.toml`, checked by
+/// a test). The test doubles (`scripted`, `none`, `ground-truth`) run only
+/// where a config names them.
+impl Default for ServicesConfig {
+    fn default() -> Self {
+        Self {
+            camera_reader: ServiceConfig::default(),
+            segmenter: ServiceConfig {
+                backend: "yolov8-seg".into(),
+                model: "yolov8n-seg_f32.onnx".into(),
+                model_sha256: "38459a0adc72f8b13be368e641b3c1a9815799b9bddbb86e0140aa18ec059942"
+                    .into(),
+                classes: [
+                    "person",
+                    "bicycle",
+                    "car",
+                    "motorcycle",
+                    "bus",
+                    "truck",
+                    "dog",
+                    "cat",
+                ]
+                .map(String::from)
+                .to_vec(),
+                score_threshold: Some(0.25),
+                iou_threshold: Some(0.7),
+                input_size: Some(320),
+                threads: Some(2),
+                ..ServiceConfig::default()
+            },
+            propagator: ServiceConfig {
+                backend: "lk".into(),
+                ..ServiceConfig::default()
+            },
+            slam: ServiceConfig {
+                backend: "orb-rgbd".into(),
+                keyframe_every: 5,
+                threads: Some(2),
+                mask_mode: "filter".into(),
+                ..ServiceConfig::default()
+            },
+        }
+    }
 }
 
 /// Settings of one service process. `backend` picks the implementation behind
@@ -235,7 +313,7 @@ pub struct ServiceConfig {
     /// Replace the service's program: `["/path/to/bin", "arg", ...]`. The
     /// supervisor appends the standard service arguments.
     pub command: Vec<String>,
-    /// Which implementation to run (service specific; empty: the default).
+    /// Which implementation to run (service specific; see the shipped config).
     pub backend: String,
     /// Scripted SLAM: request a keyframe every this many frames.
     pub keyframe_every: u64,
@@ -284,30 +362,37 @@ impl PipelineConfig {
             path: path.to_path_buf(),
             source,
         })?;
-        Self::parse(&text).map_err(|message| ConfigError::Invalid {
+        // A UTF-8 byte-order mark (Windows editors) is not part of the TOML.
+        Self::parse(text.trim_start_matches('\u{feff}')).map_err(|message| ConfigError::Invalid {
             path: path.to_path_buf(),
             message,
         })
     }
 
-    /// Parses and validates configuration text; the error names the key path.
+    /// `path` layered over the built-in defaults, or the built-in defaults
+    /// (the shipped `configs/pipeline.toml`) when there is no file.
+    pub fn load_or_default(path: Option<&Path>) -> Result<Self, ConfigError> {
+        match path {
+            Some(p) => Self::load(p),
+            None => Ok(Self::default()),
+        }
+    }
+
+    /// Parses configuration text layered over the built-in defaults (which
+    /// are the shipped `configs/pipeline.toml`): every key the text sets
+    /// replaces the default's, tables merge key by key, so a file with only
+    /// `[camera]` (or only `services.segmenter.threads`) still runs the
+    /// product. Errors name the key path and line.
     pub fn parse(text: &str) -> Result<Self, String> {
-        let deserializer = toml::Deserializer::new(text);
-        let config: PipelineConfig =
-            serde_path_to_error::deserialize(deserializer).map_err(|e| {
-                let path = e.path().to_string();
-                let inner = e.into_inner();
-                let msg = inner.message().to_string();
-                let line = inner
-                    .span()
-                    .map(|s| format!(" (line {})", line_of(text, s.start)))
-                    .unwrap_or_default();
-                if path.is_empty() || path == "." {
-                    format!("{msg}{line}")
-                } else {
-                    format!("key `{path}`{line}: {msg}")
-                }
-            })?;
+        // The text alone first: unknown keys and wrong types, with their lines.
+        let _: PipelineConfig = deserialize_named(text)?;
+        let user: toml::Table = text.parse().map_err(|e: toml::de::Error| e.to_string())?;
+        let mut layered = toml::Table::try_from(PipelineConfig::default())
+            .map_err(|e| format!("cannot serialise the built-in defaults: {e}"))?;
+        merge_tables(&mut layered, user);
+        let config: PipelineConfig = toml::Value::Table(layered)
+            .try_into()
+            .map_err(|e: toml::de::Error| e.message().to_string())?;
         config.validate()?;
         Ok(config)
     }
@@ -344,20 +429,16 @@ impl PipelineConfig {
                 self.services.slam.mask_mode
             ));
         }
-        let c = &self.camera;
-        if ![c.fx, c.fy].iter().all(|f| f.is_finite() && *f > 0.0)
-            || ![c.cx, c.cy].iter().all(|v| v.is_finite())
-            || !c.distortion.iter().all(|d| d.is_finite())
-        {
+        self.camera
+            .validate()
+            .map_err(|e| format!("{e} (in [camera])"))?;
+        if self.source.kind == SourceKind::Images && self.services.slam.backend == "orb-rgbd" {
             return Err(
-                "key `camera`: fx and fy must be positive, cx, cy and distortion finite".into(),
+                "key `source.kind`: \"images\" plays frames without depth, and \
+                 `services.slam.backend = \"orb-rgbd\"` needs depth (monocular SLAM is not built \
+                 yet): use a TUM RGB-D folder (kind = \"tum\")"
+                    .into(),
             );
-        }
-        if !CameraConfig::READOUT_S.contains(&c.readout_s) {
-            return Err(format!(
-                "key `camera.readout_s`: {} is not a rolling-shutter readout time in seconds (0 <= s < 0.2; 0 for a global shutter)",
-                c.readout_s
-            ));
         }
         let s = &self.supervisor;
         if s.restart_backoff_initial_ms == 0
@@ -399,19 +480,194 @@ impl PipelineConfig {
     }
 }
 
-fn line_of(text: &str, byte: usize) -> usize {
-    text[..byte.min(text.len())].matches('\n').count() + 1
+/// Deserialises `text` alone, naming the key path and line of an error.
+fn deserialize_named(text: &str) -> Result<PipelineConfig, String> {
+    let deserializer = toml::Deserializer::new(text);
+    serde_path_to_error::deserialize(deserializer).map_err(|e| {
+        let path = e.path().to_string();
+        let inner = e.into_inner();
+        let msg = inner.message().to_string();
+        let line = inner
+            .span()
+            .map(|s| {
+                let (line, column) = line_column_of(text, s.start);
+                format!(" (line {line}, column {column})")
+            })
+            .unwrap_or_default();
+        if path.is_empty() || path == "." {
+            format!("{msg}{line}")
+        } else {
+            format!("key `{path}`{line}: {msg}")
+        }
+    })
+}
+
+/// Layers `over` onto `base`: tables merge recursively, anything else in
+/// `over` replaces the value in `base`.
+fn merge_tables(base: &mut toml::Table, over: toml::Table) {
+    for (key, value) in over {
+        match (base.get_mut(&key), value) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => merge_tables(b, o),
+            (_, value) => {
+                base.insert(key, value);
+            }
+        }
+    }
+}
+
+fn line_column_of(text: &str, byte: usize) -> (usize, usize) {
+    let before = &text[..byte.min(text.len())];
+    let line_start = before.rfind('\n').map_or(0, |i| i + 1);
+    (
+        before.matches('\n').count() + 1,
+        before[line_start..].chars().count() + 1,
+    )
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
+    fn shipped_path() -> std::path::PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/pipeline.toml")
+    }
+
     #[test]
-    fn empty_config_gives_defaults() {
-        let c = PipelineConfig::parse("").unwrap();
-        assert_eq!(c.run.mode, ClockMode::Lockstep);
-        assert_eq!(c.run.max_width, 640);
+    fn built_in_defaults_are_the_shipped_configuration() {
+        let shipped = PipelineConfig::load(&shipped_path()).unwrap();
+        assert_eq!(PipelineConfig::default(), shipped);
+        assert_eq!(PipelineConfig::parse("").unwrap(), shipped);
+        assert_eq!(shipped.services.slam.backend, "orb-rgbd");
+        assert_eq!(shipped.services.segmenter.backend, "yolov8-seg");
+        assert_eq!(shipped.services.propagator.backend, "lk");
+    }
+
+    #[test]
+    fn a_partial_config_is_layered_over_the_defaults() {
+        // Only [camera]: the product's backends, the given camera values.
+        let c = PipelineConfig::parse("[camera]\nfx = 520.9\nreadout_s = 0.0\n").unwrap();
+        assert_eq!(c.services.slam.backend, "orb-rgbd");
+        assert_eq!(c.services.segmenter.backend, "yolov8-seg");
+        assert_eq!(c.services.propagator.backend, "lk");
+        assert_eq!((c.camera.fx, c.camera.readout_s), (520.9, 0.0));
+        assert_eq!(c.camera.fy, CameraConfig::default().fy);
+        // One key of a service section keeps the section's other defaults.
+        let c = PipelineConfig::parse("[services.segmenter]\nthreads = 1\n").unwrap();
+        assert_eq!(c.services.segmenter.threads, Some(1));
+        assert_eq!(c.services.segmenter.backend, "yolov8-seg");
+        assert_eq!(c.services.segmenter.classes.len(), 8);
+        // A test double runs only when named.
+        let c = PipelineConfig::parse("[services.slam]\nbackend = \"scripted\"\n").unwrap();
+        assert_eq!(c.services.slam.backend, "scripted");
+        assert_eq!(c.services.segmenter.backend, "yolov8-seg");
+    }
+
+    #[test]
+    fn an_image_folder_with_the_rgbd_slam_is_an_error_naming_the_keys() {
+        let err = PipelineConfig::parse("[source]\nkind = \"images\"\n").unwrap_err();
+        assert!(err.contains("source.kind"), "{err}");
+        assert!(err.contains("services.slam.backend"), "{err}");
+        PipelineConfig::parse(
+            "[source]\nkind = \"images\"\n[services.slam]\nbackend = \"scripted\"\n",
+        )
+        .unwrap();
+    }
+
+    #[test]
+    fn a_byte_order_mark_is_tolerated() {
+        let path = std::env::temp_dir().join(format!("dynslam-bom-{}.toml", std::process::id()));
+        std::fs::write(&path, "\u{feff}[run]\nspeed = 2.0\n").unwrap();
+        assert_eq!(PipelineConfig::load(&path).unwrap().run.speed, 2.0);
+        std::fs::remove_file(&path).ok();
+    }
+
+    /// Key paths of a TOML table's leaves: `section.key` (`services.slam.threads`).
+    fn leaf_keys(table: &toml::Table, prefix: &str, out: &mut Vec<String>) {
+        for (k, v) in table {
+            let path = if prefix.is_empty() {
+                k.clone()
+            } else {
+                format!("{prefix}.{k}")
+            };
+            match v {
+                toml::Value::Table(t) => leaf_keys(t, &path, out),
+                _ => out.push(path),
+            }
+        }
+    }
+
+    #[test]
+    fn the_shipped_file_documents_every_key() {
+        // Every field set, so that optional keys serialise too.
+        let mut full = PipelineConfig::default();
+        full.onnxruntime.library = Some("/x".into());
+        for svc in [
+            &mut full.services.camera_reader,
+            &mut full.services.segmenter,
+            &mut full.services.propagator,
+            &mut full.services.slam,
+        ] {
+            svc.command = vec!["x".into()];
+            svc.seen_log = Some("/x".into());
+            svc.model_path = Some("/x".into());
+            svc.score_threshold = Some(0.5);
+            svc.iou_threshold = Some(0.5);
+            svc.input_size = Some(320);
+            svc.threads = Some(1);
+            svc.classes = vec!["person".into()];
+        }
+        let mut keys = Vec::new();
+        leaf_keys(&toml::Table::try_from(&full).unwrap(), "", &mut keys);
+        // Documented keys: `key =` and `# key =` lines under `[section]` or
+        // `# [section]` headers; service keys count for every service.
+        let text = std::fs::read_to_string(shipped_path()).unwrap();
+        let mut documented = std::collections::BTreeSet::new();
+        let mut section = String::new();
+        for line in text.lines() {
+            let l = line.trim_start_matches('#').trim();
+            if let Some(rest) = l.strip_prefix('[') {
+                if let Some(end) = rest.find(']') {
+                    section = rest[..end].trim().to_string();
+                    continue;
+                }
+            }
+            if let Some((key, _)) = l.split_once('=') {
+                let key = key.trim();
+                if !key.is_empty()
+                    && key
+                        .chars()
+                        .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_')
+                {
+                    let section = if section.starts_with("services.") {
+                        "services.*"
+                    } else {
+                        section.as_str()
+                    };
+                    documented.insert(format!("{section}.{key}"));
+                }
+            }
+        }
+        let mut missing = Vec::new();
+        for key in &keys {
+            let general = match key.strip_prefix("services.") {
+                Some(rest) => format!("services.*.{}", rest.split_once('.').unwrap().1),
+                None => key.clone(),
+            };
+            if !documented.contains(&general) {
+                missing.push(general);
+            }
+        }
+        missing.dedup();
+        assert!(
+            missing.is_empty(),
+            "configs/pipeline.toml does not document: {missing:?}"
+        );
+        for svc in ["slam", "segmenter", "propagator", "camera-reader"] {
+            assert!(
+                text.contains(&format!("[services.{svc}]")),
+                "no [services.{svc}] section"
+            );
+        }
     }
 
     #[test]
@@ -432,7 +688,10 @@ mod tests {
         let err = PipelineConfig::parse("[run]\nspeed = -1.0\n").unwrap_err();
         assert!(err.contains("run.speed"), "{err}");
         let err = PipelineConfig::parse("[camera]\nreadout_s = 0.5\n").unwrap_err();
-        assert!(err.contains("camera.readout_s"), "{err}");
+        assert!(
+            err.contains("readout_s") && err.contains("[camera]"),
+            "{err}"
+        );
         assert!(PipelineConfig::parse("[run\n").is_err());
     }
 

@@ -69,8 +69,17 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
     let realtime = ctx.config.run.mode == ClockMode::Realtime;
     let mut held: VecDeque<FrameSample> = VecDeque::new();
     let mut pending: VecDeque<Route> = VecDeque::new();
+    // Routed frames already replaced by newer ones (real time): counted and
+    // said once at the end instead of a warning per frame.
+    let mut not_held = 0u64;
     loop {
         if wait(&ws, Duration::from_secs(1))? == Wake::Terminate {
+            if not_held > 0 {
+                tracing::info!(
+                    "{}: {not_held} routed frames had been replaced by newer ones before their turn (real time: the supervisor counts them as dropped)",
+                    role.as_str()
+                );
+            }
             return Ok(());
         }
         frames.clear_wakeups();
@@ -117,7 +126,12 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
             let Some(sample) = held.iter().find(|s| s.user_header().seq == route.seq) else {
                 let oldest = held.front().map(|s| s.user_header().seq);
                 if oldest.is_some_and(|o| o > route.seq) {
-                    tracing::warn!(seq = route.seq, "routed frame no longer held; skipping");
+                    if realtime {
+                        tracing::debug!(seq = route.seq, "routed frame no longer held; skipping");
+                    } else {
+                        tracing::warn!(seq = route.seq, "routed frame no longer held; skipping");
+                    }
+                    not_held += 1;
                     pending.pop_front();
                     continue;
                 }
@@ -209,11 +223,7 @@ pub fn model_from_config(
 ) -> Result<Box<dyn MaskModel>> {
     let section = ctx.kind.as_str();
     let cfg = ctx.config.service(ctx.kind);
-    let wanted = if cfg.backend.is_empty() {
-        "none"
-    } else {
-        cfg.backend.as_str()
-    };
+    let wanted = cfg.backend.as_str();
     if wanted == "none" {
         return Ok(Box::new(NoObjects {
             work: Duration::from_millis(cfg.work_ms),

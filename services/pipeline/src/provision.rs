@@ -32,6 +32,19 @@ pub enum ProvisionError {
     Unreadable { path: PathBuf, message: String },
 }
 
+/// The shared TUM sequence the benches play by default, beside the repo.
+pub const SHARED_TUM: &str = "../shared/data/tum/rgbd_dataset_freiburg1_rpy_first300";
+
+/// The shared TUM sequence beside the repository of the running binary
+/// (so the benches' default works from any directory), else beside the
+/// working directory.
+pub fn shared_tum() -> PathBuf {
+    repo_root_of_exe()
+        .map(|root| root.join(SHARED_TUM))
+        .filter(|p| p.is_dir())
+        .unwrap_or_else(|| PathBuf::from(SHARED_TUM))
+}
+
 /// The repository root of a binary in `<repo>/target/<profile>/`.
 pub fn repo_root_of_exe() -> Option<PathBuf> {
     let exe = std::env::current_exe().ok()?;

@@ -4,7 +4,6 @@
 
 pub mod core;
 pub mod eval;
-pub mod plot;
 pub mod ply;
 pub mod rgbd_tracker;
 pub mod scripted;

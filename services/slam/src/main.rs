@@ -49,7 +49,7 @@ fn main() -> ExitCode {
 fn tracker_from_config(ctx: &ServiceContext) -> Result<Box<dyn Tracker>> {
     let cfg = &ctx.config.services.slam;
     match cfg.backend.as_str() {
-        "" | "scripted" => Ok(Box::new(ScriptedTracker::new(
+        "scripted" => Ok(Box::new(ScriptedTracker::new(
             if cfg.keyframe_every == 0 {
                 5
             } else {

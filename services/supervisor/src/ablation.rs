@@ -125,7 +125,7 @@ pub fn run(
         cfg.source.path = v.dataset.clone().unwrap_or_else(|| dataset.clone());
         (v.apply)(&mut cfg);
         let id = format!("ablate-{batch}-{}", v.key);
-        let dir = run_dir::create(output_dir, &id, &cfg)?;
+        let dir = run_dir::create(output_dir, &id, &cfg, "config (ablation)")?;
         eprintln!("ablation {}: {} -> {}", v.key, v.label, dir.display());
         let summary = execute(&dir).with_context(|| format!("ablation run {}", v.label))?;
         let report = summary

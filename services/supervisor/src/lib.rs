@@ -3,13 +3,13 @@
 //! per-stage latency. The `dynslam` binary is its command line.
 
 pub mod ablation;
-pub mod charts;
 pub mod children;
 pub mod default_scene;
 pub mod latency;
 pub mod mask_eval;
 pub mod mask_record;
 pub mod outputs;
+pub mod plots;
 pub mod report;
 pub mod routing;
 pub mod run;

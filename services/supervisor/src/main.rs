@@ -28,15 +28,31 @@ struct Cli {
 #[derive(Debug, Subcommand)]
 enum Command {
     /// Run the whole pipeline on a dataset and write a run folder.
+    ///
+    /// Exit codes: 0 done, 1 failed (bad input, a service that could not
+    /// run), 2 bad command line, 3 degraded (a mask worker was given up on;
+    /// status.json and report.md say why), 130 interrupted.
     Run {
-        /// TUM RGB-D folder (or image folder with `--source images`);
-        /// default: `source.path` of the config, and when that is empty too
-        /// the embedded default scene (a rendered room with people walking
-        /// through it, rendered once into OUTPUT_DIR/default-scene-v2).
+        /// TUM RGB-D folder (rgb.txt, depth.txt); default: `source.path` of
+        /// the config, and when that is empty too the embedded default scene
+        /// (a rendered room with people walking through it, rendered once
+        /// into OUTPUT_DIR/default-scene-v2).
         dataset: Option<PathBuf>,
-        /// Pipeline configuration.
-        #[arg(long, default_value = "configs/pipeline.toml")]
-        config: PathBuf,
+        /// Pipeline configuration, layered over the built-in defaults (the
+        /// shipped configs/pipeline.toml); default: the built-in defaults.
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Camera: a preset (tum-fr1, tum-fr2, tum-fr3, bonn,
+        /// global-shutter-example), a camera file (the keys of [camera]), or
+        /// `config` for the config's [camera]. Default: the preset the
+        /// dataset folder's name implies (rgbd_dataset_freiburg2_* -> tum-fr2,
+        /// rgbd_bonn_* -> bonn), else the config's [camera].
+        #[arg(long)]
+        camera: Option<String>,
+        /// Fail (exit 1) instead of finishing degraded (exit 3) when a mask
+        /// worker is given up on (`run.require_masks`).
+        #[arg(long)]
+        require_masks: bool,
         /// Where the run folder is created (default: `run.output_dir`).
         #[arg(long)]
         output_dir: Option<PathBuf>,
@@ -65,8 +81,9 @@ enum Command {
         /// A folder written by `dynslam synth` (ground-truth masks needed
         /// for row b and the IoU column).
         dataset: PathBuf,
-        #[arg(long, default_value = "configs/pipeline.toml")]
-        config: PathBuf,
+        /// Pipeline configuration (default: the built-in defaults).
+        #[arg(long)]
+        config: Option<PathBuf>,
         /// Where the run folders and ablation.md go (default: `run.output_dir`).
         #[arg(long)]
         output_dir: Option<PathBuf>,
@@ -104,7 +121,8 @@ enum Command {
         /// Also write the summary to this JSON file.
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Also draw estimate (red) vs ground truth (grey), x-y and x-z views, to this PNG.
+        /// Also draw the aligned estimate (coloured by error) against the
+        /// ground truth (grey) in its two main views, to this PNG.
         #[arg(long)]
         plot: Option<PathBuf>,
     },
@@ -143,9 +161,10 @@ enum Command {
         /// Synthesise only the first N frames.
         #[arg(long)]
         limit: Option<usize>,
-        /// Camera intrinsics and depth scale are read from this config.
-        #[arg(long, default_value = "configs/pipeline.toml")]
-        config: PathBuf,
+        /// Camera intrinsics and depth scale are read from this config
+        /// (default: the built-in defaults).
+        #[arg(long)]
+        config: Option<PathBuf>,
     },
     /// Mask quality against ground truth on a `dynslam synth` sequence:
     /// segmenter IoU on keyframes, propagator IoU on the frames between.
@@ -167,8 +186,9 @@ enum Command {
         /// Write each frame's predicted labels (NNNN.png) and scores.csv here.
         #[arg(long)]
         save: Option<PathBuf>,
-        #[arg(long, default_value = "configs/pipeline.toml")]
-        config: PathBuf,
+        /// Pipeline configuration (default: the built-in defaults).
+        #[arg(long)]
+        config: Option<PathBuf>,
     },
 }
 
@@ -207,15 +227,20 @@ fn dispatch(command: Command) -> Result<ExitCode> {
         Command::Run {
             dataset,
             config,
+            camera,
+            require_masks,
             output_dir,
             mode,
             no_masks,
             limit,
             run_id,
         } => {
-            let mut cfg = PipelineConfig::load(&config)?;
+            let mut cfg = load_config(config.as_deref())?;
             if let Some(d) = dataset {
                 cfg.source.path = d;
+            }
+            if require_masks {
+                cfg.run.require_masks = true;
             }
             let out = output_dir.unwrap_or_else(|| cfg.run.output_dir.clone());
             if cfg.source.path.as_os_str().is_empty() {
@@ -246,12 +271,42 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             if let Some(l) = limit {
                 cfg.source.limit = l;
             }
+            let choice =
+                pipeline::cameras::choose(camera.as_deref(), &cfg.source.path, &cfg.camera)
+                    .map_err(anyhow::Error::msg)?;
+            if choice.name != pipeline::cameras::FROM_CONFIG && choice.camera != cfg.camera {
+                tracing::info!(
+                    "camera {} ({}) replaces the config's [camera]; --camera config keeps the config's",
+                    choice.name,
+                    choice.reason
+                );
+            }
+            tracing::info!("camera {}: {}", choice.name, choice.reason);
+            cfg.camera = choice.camera.clone();
+            PipelineConfig::parse(&cfg.to_toml()?)
+                .map_err(|e| anyhow::anyhow!("the resolved configuration: {e}"))?;
             let id = match run_id {
                 Some(id) => id,
                 None => run_dir::new_run_id(),
             };
             shared_types::names::RunNames::new(&id).map_err(anyhow::Error::msg)?;
-            let dir = run_dir::create(&out, &id, &cfg)?;
+            tracing::info!(
+                "backends: slam {}, segmenter {}, propagator {}{}",
+                cfg.services.slam.backend,
+                cfg.services.segmenter.backend,
+                cfg.services.propagator.backend,
+                if cfg.routing.no_masks {
+                    " (routing.no_masks: no frame is masked)"
+                } else {
+                    ""
+                }
+            );
+            let dir = run_dir::create(
+                &out,
+                &id,
+                &cfg,
+                &format!("{}: {}", choice.name, choice.reason),
+            )?;
             eprintln!("run {id}: {}", dir.display());
             Ok(report_run(&execute(&dir)?))
         }
@@ -263,7 +318,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             limit,
             only,
         } => {
-            let mut cfg = PipelineConfig::load(&config)?;
+            let mut cfg = load_config(config.as_deref())?;
             if let Some(l) = limit {
                 cfg.source.limit = l;
             }
@@ -295,7 +350,11 @@ fn dispatch(command: Command) -> Result<ExitCode> {
         Command::Report { run_dir } => {
             let (_, cfg) = run_dir::open(&run_dir)?;
             let (_, rows) = supervisor::outputs::FrameLog::open(&run_dir)?;
-            supervisor::report::write(&run_dir, &cfg, &rows)?;
+            let problems: Vec<String> = run_dir::read_status(&run_dir)
+                .and_then(|s| s.error)
+                .into_iter()
+                .collect();
+            supervisor::report::write(&run_dir, &cfg, &rows, &problems)?;
             println!("{}", supervisor::report::report_path(&run_dir).display());
             Ok(ExitCode::SUCCESS)
         }
@@ -342,7 +401,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                     OcclusionArg::None => scenes::walkers::Occlusion::None,
                 },
             };
-            synth(&input, &output, &options, limit, &config).map(|()| ExitCode::SUCCESS)
+            synth(&input, &output, &options, limit, config.as_deref()).map(|()| ExitCode::SUCCESS)
         }
         Command::MasksEval {
             dataset,
@@ -359,16 +418,34 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             limit,
             json,
             save.as_deref(),
-            &config,
+            config.as_deref(),
         )
         .map(|()| ExitCode::SUCCESS),
     }
 }
 
+/// Exit code of a run that finished degraded (a mask worker given up on).
+const EXIT_DEGRADED: u8 = 3;
+/// Exit code of an interrupted run (SIGINT/SIGTERM), as shells report it.
+const EXIT_INTERRUPTED: u8 = 130;
+
+fn load_config(path: Option<&std::path::Path>) -> Result<PipelineConfig> {
+    Ok(PipelineConfig::load_or_default(path)?)
+}
+
 /// Prints a finished run's summary (the run folder last, on stdout) and
-/// picks the exit code: 130 when it was interrupted.
+/// picks the exit code: 130 interrupted, 3 degraded, 0 otherwise.
 fn report_run(summary: &RunSummary) -> ExitCode {
+    for d in &summary.degraded {
+        eprintln!("DEGRADED: {d}");
+    }
     eprintln!("{}", summary.latency_table);
+    if summary.dropped > 0 {
+        eprintln!(
+            "real time: {} of {} frames dropped (a newer frame was tracked first; frames.csv notes each)",
+            summary.dropped, summary.frames
+        );
+    }
     eprintln!(
         "{} frames, {} tracked, {} service restarts{}",
         summary.frames,
@@ -397,7 +474,9 @@ fn report_run(summary: &RunSummary) -> ExitCode {
     }
     println!("{}", summary.run_dir.display());
     if summary.interrupted {
-        ExitCode::from(130)
+        ExitCode::from(EXIT_INTERRUPTED)
+    } else if !summary.degraded.is_empty() {
+        ExitCode::from(EXIT_DEGRADED)
     } else {
         ExitCode::SUCCESS
     }
@@ -408,9 +487,9 @@ fn synth(
     output: &std::path::Path,
     options: &scenes::walkers::WalkOptions,
     limit: Option<usize>,
-    config: &std::path::Path,
+    config: Option<&std::path::Path>,
 ) -> Result<()> {
-    let cfg = PipelineConfig::load(config)?;
+    let cfg = load_config(config)?;
     let camera = scenes::composite::Pinhole {
         fx: cfg.camera.fx,
         fy: cfg.camera.fy,
@@ -443,9 +522,9 @@ fn masks_eval(
     limit: Option<usize>,
     json: bool,
     save: Option<&std::path::Path>,
-    config: &std::path::Path,
+    config: Option<&std::path::Path>,
 ) -> Result<()> {
-    let cfg = PipelineConfig::load(config)?;
+    let cfg = load_config(config)?;
     let s = supervisor::mask_eval::evaluate(dataset, &cfg, keyframe_every, min_px, limit, save)?;
     if json {
         println!("{}", serde_json::to_string_pretty(&s)?);
@@ -516,7 +595,16 @@ fn eval(
         std::fs::write(path, &text).with_context(|| format!("cannot write {}", path.display()))?;
     }
     if let Some(path) = plot {
-        slam::plot::write_trajectory_png(path, &s.positions)?;
+        let (img, _) = supervisor::plots::trajectory(
+            &s.positions,
+            &format!(
+                "{} vs {} (ATE RMSE {:.4} m)",
+                est.display(),
+                gt.display(),
+                s.ate_rmse_m
+            ),
+        )?;
+        supervisor::plots::save(&img, path)?;
     }
     if json {
         println!("{text}");

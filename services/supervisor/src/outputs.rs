@@ -7,20 +7,16 @@
 //! derived from these rows at the end of the run.
 
 use std::fs::{File, OpenOptions};
-use std::io::{BufRead, BufReader, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
+use serde::{Deserialize, Serialize};
 use shared_types::StageStamps;
 use slam::trajectory::Trajectory;
 
 pub const FRAMES_CSV: &str = "frames.csv";
-
-const HEADER: &str = "seq,timestamp,state,route,mask_source,keyframe,next_keyframe,\
-tx,ty,tz,qx,qy,qz,qw,features,features_masked,inliers,map_points,keyframes,\
-slam_extract_us,slam_mapping_us,capture_ns,published_ns,routed_ns,masks_start_ns,masks_done_ns,slam_received_ns,\
-track_start_ns,track_done_ns,track_received_ns,note";
 
 /// The fate of one frame.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -52,103 +48,135 @@ pub struct FrameRow {
     pub note: String,
 }
 
-impl FrameRow {
-    pub fn to_csv(&self) -> String {
-        let s = &self.stamps;
-        let p = &self.pose;
-        let note: String = self
-            .note
-            .chars()
-            .map(|c| {
-                if c == ',' || c == '\n' || c == '\r' {
-                    ';'
-                } else {
-                    c
-                }
-            })
-            .collect();
-        format!(
-            "{},{:.6},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
-            self.seq,
-            self.timestamp,
-            self.state,
-            self.route,
-            self.mask_source,
-            self.keyframe as u8,
-            self.next_keyframe as u8,
-            p[0],
-            p[1],
-            p[2],
-            p[3],
-            p[4],
-            p[5],
-            p[6],
-            self.features,
-            self.features_masked,
-            self.inliers,
-            self.map_points,
-            self.keyframes,
-            self.extract_us,
-            self.mapping_us,
-            s.capture_ns,
-            s.published_ns,
-            s.routed_ns,
-            s.masks_start_ns,
-            s.masks_done_ns,
-            s.slam_received_ns,
-            s.track_start_ns,
-            s.track_done_ns,
-            self.track_received_ns,
-            note
-        )
-    }
+/// One line of `frames.csv` as written: the pose columns are empty where
+/// a frame has no pose (skipped, dropped, lost, not initialised).
+#[derive(Debug, Serialize, Deserialize)]
+struct CsvRow {
+    seq: u64,
+    timestamp: f64,
+    state: String,
+    route: String,
+    mask_source: String,
+    keyframe: u8,
+    next_keyframe: u8,
+    tx: Option<f64>,
+    ty: Option<f64>,
+    tz: Option<f64>,
+    qx: Option<f64>,
+    qy: Option<f64>,
+    qz: Option<f64>,
+    qw: Option<f64>,
+    features: u32,
+    features_masked: u32,
+    inliers: u32,
+    map_points: u32,
+    keyframes: u32,
+    slam_extract_us: u32,
+    slam_mapping_us: u32,
+    capture_ns: u64,
+    published_ns: u64,
+    routed_ns: u64,
+    masks_start_ns: u64,
+    masks_done_ns: u64,
+    slam_received_ns: u64,
+    track_start_ns: u64,
+    track_done_ns: u64,
+    track_received_ns: u64,
+    note: String,
+}
 
-    pub fn from_csv(line: &str) -> Result<Self> {
-        let f: Vec<&str> = line.splitn(31, ',').collect();
-        if f.len() != 31 {
-            bail!("expected 31 fields, found {}", f.len());
+/// The header line `CsvRow` writes (checked by a test).
+const HEADER: &str = "seq,timestamp,state,route,mask_source,keyframe,next_keyframe,\
+tx,ty,tz,qx,qy,qz,qw,features,features_masked,inliers,map_points,keyframes,\
+slam_extract_us,slam_mapping_us,capture_ns,published_ns,routed_ns,masks_start_ns,masks_done_ns,slam_received_ns,\
+track_start_ns,track_done_ns,track_received_ns,note";
+
+impl From<&FrameRow> for CsvRow {
+    fn from(r: &FrameRow) -> Self {
+        let s = &r.stamps;
+        let pose = |k: usize| r.is_tracked().then_some(r.pose[k]);
+        Self {
+            seq: r.seq,
+            timestamp: r.timestamp,
+            state: r.state.clone(),
+            route: r.route.clone(),
+            mask_source: r.mask_source.clone(),
+            keyframe: r.keyframe as u8,
+            next_keyframe: r.next_keyframe as u8,
+            tx: pose(0),
+            ty: pose(1),
+            tz: pose(2),
+            qx: pose(3),
+            qy: pose(4),
+            qz: pose(5),
+            qw: pose(6),
+            features: r.features,
+            features_masked: r.features_masked,
+            inliers: r.inliers,
+            map_points: r.map_points,
+            keyframes: r.keyframes,
+            slam_extract_us: r.extract_us,
+            slam_mapping_us: r.mapping_us,
+            capture_ns: s.capture_ns,
+            published_ns: s.published_ns,
+            routed_ns: s.routed_ns,
+            masks_start_ns: s.masks_start_ns,
+            masks_done_ns: s.masks_done_ns,
+            slam_received_ns: s.slam_received_ns,
+            track_start_ns: s.track_start_ns,
+            track_done_ns: s.track_done_ns,
+            track_received_ns: r.track_received_ns,
+            // One frame, one line (a resumed run cuts a half-written last
+            // line): line breaks in a note become spaces, commas are quoted.
+            note: r.note.replace(['\n', '\r'], " "),
         }
-        let u = |i: usize| -> Result<u64> {
-            f[i].parse()
-                .with_context(|| format!("field {} '{}' is not an integer", i + 1, f[i]))
-        };
-        let x = |i: usize| -> Result<f64> {
-            f[i].parse()
-                .with_context(|| format!("field {} '{}' is not a number", i + 1, f[i]))
-        };
-        let mut pose = [0.0; 7];
-        for (k, v) in pose.iter_mut().enumerate() {
-            *v = x(7 + k)?;
-        }
-        Ok(Self {
-            seq: u(0)?,
-            timestamp: x(1)?,
-            state: f[2].to_string(),
-            route: f[3].to_string(),
-            mask_source: f[4].to_string(),
-            keyframe: u(5)? != 0,
-            next_keyframe: u(6)? != 0,
-            pose,
-            features: u(14)? as u32,
-            features_masked: u(15)? as u32,
-            inliers: u(16)? as u32,
-            map_points: u(17)? as u32,
-            keyframes: u(18)? as u32,
-            extract_us: u(19)? as u32,
-            mapping_us: u(20)? as u32,
+    }
+}
+
+impl From<CsvRow> for FrameRow {
+    fn from(c: CsvRow) -> Self {
+        let p = [c.tx, c.ty, c.tz, c.qx, c.qy, c.qz, c.qw];
+        Self {
+            seq: c.seq,
+            timestamp: c.timestamp,
+            state: c.state,
+            route: c.route,
+            mask_source: c.mask_source,
+            keyframe: c.keyframe != 0,
+            next_keyframe: c.next_keyframe != 0,
+            pose: p.map(|v| v.unwrap_or(0.0)),
+            features: c.features,
+            features_masked: c.features_masked,
+            inliers: c.inliers,
+            map_points: c.map_points,
+            keyframes: c.keyframes,
+            extract_us: c.slam_extract_us,
+            mapping_us: c.slam_mapping_us,
             stamps: StageStamps {
-                capture_ns: u(21)?,
-                published_ns: u(22)?,
-                routed_ns: u(23)?,
-                masks_start_ns: u(24)?,
-                masks_done_ns: u(25)?,
-                slam_received_ns: u(26)?,
-                track_start_ns: u(27)?,
-                track_done_ns: u(28)?,
+                capture_ns: c.capture_ns,
+                published_ns: c.published_ns,
+                routed_ns: c.routed_ns,
+                masks_start_ns: c.masks_start_ns,
+                masks_done_ns: c.masks_done_ns,
+                slam_received_ns: c.slam_received_ns,
+                track_start_ns: c.track_start_ns,
+                track_done_ns: c.track_done_ns,
             },
-            track_received_ns: u(29)?,
-            note: f[30].to_string(),
-        })
+            track_received_ns: c.track_received_ns,
+            note: c.note,
+        }
+    }
+}
+
+impl FrameRow {
+    /// The row as one CSV line (with its newline; quoted where needed).
+    pub fn to_csv(&self) -> Result<String> {
+        let mut w = csv::WriterBuilder::new()
+            .has_headers(false)
+            .from_writer(Vec::new());
+        w.serialize(CsvRow::from(self))?;
+        let bytes = w.into_inner().map_err(|e| anyhow::anyhow!("{e}"))?;
+        Ok(String::from_utf8(bytes)?)
     }
 
     /// True when the row has a valid pose.
@@ -182,22 +210,25 @@ impl FrameLog {
                 let f = OpenOptions::new().write(true).open(&path)?;
                 f.set_len(complete as u64)?;
             }
-            let reader = BufReader::new(&text[..complete]);
-            for (i, line) in reader.lines().enumerate() {
-                let line = line?;
-                if i == 0 {
-                    if line != HEADER {
-                        bail!(
-                            "{}: unexpected header line; not a dynslam frames file",
-                            path.display()
-                        );
-                    }
-                    continue;
-                }
-                rows.push(
-                    FrameRow::from_csv(&line)
-                        .with_context(|| format!("{} line {}", path.display(), i + 1))?,
+            let mut reader = csv::ReaderBuilder::new().from_reader(&text[..complete]);
+            let header: Vec<String> = reader
+                .headers()
+                .with_context(|| format!("cannot read {}", path.display()))?
+                .iter()
+                .map(String::from)
+                .collect();
+            if complete > 0 && header.join(",") != HEADER {
+                bail!(
+                    "{}: unexpected header line; not a frames file of this dynslam version",
+                    path.display()
                 );
+            }
+            for record in reader.deserialize::<CsvRow>() {
+                let row = record.map_err(|e| {
+                    let line = e.position().map_or(0, |p| p.line());
+                    anyhow::anyhow!("{} line {line}: {e}", path.display())
+                })?;
+                rows.push(row.into());
             }
         }
         let mut file = OpenOptions::new()
@@ -213,7 +244,7 @@ impl FrameLog {
 
     /// Appends one row with a single write, flushed to the OS at once.
     pub fn append(&mut self, row: &FrameRow) -> Result<()> {
-        let line = format!("{}\n", row.to_csv());
+        let line = row.to_csv()?;
         self.file
             .write_all(line.as_bytes())
             .with_context(|| format!("cannot write {}", self.path.display()))
@@ -268,14 +299,44 @@ mod tests {
         }
     }
 
+    fn read_back(line: &str) -> FrameRow {
+        let text = format!("{HEADER}\n{line}");
+        let mut reader = csv::ReaderBuilder::new().from_reader(text.as_bytes());
+        let header: Vec<&str> = reader.headers().unwrap().iter().collect();
+        assert_eq!(header.join(","), HEADER);
+        reader
+            .deserialize::<CsvRow>()
+            .next()
+            .unwrap()
+            .unwrap()
+            .into()
+    }
+
     #[test]
-    fn rows_round_trip_and_notes_are_sanitised() {
+    fn rows_round_trip_with_notes_quoted_and_no_pose_left_empty() {
         let r = row(3);
-        let back = FrameRow::from_csv(&r.to_csv()).unwrap();
-        assert_eq!(back.note, "a; b;c");
-        assert_eq!(back.stamps, r.stamps);
-        assert_eq!(back.pose, r.pose);
-        assert!(FrameRow::from_csv("1,2,3").is_err());
+        let line = r.to_csv().unwrap();
+        assert!(
+            line.ends_with('\n') && line.contains("\"a, b c\""),
+            "{line}"
+        );
+        assert_eq!(line.matches('\n').count(), 1);
+        let back = read_back(&line);
+        assert_eq!(back.note, "a, b c");
+        assert_eq!(
+            back,
+            FrameRow {
+                note: "a, b c".into(),
+                ..r
+            }
+        );
+        let skipped = FrameRow {
+            state: "skipped".into(),
+            ..row(4)
+        };
+        let line = skipped.to_csv().unwrap();
+        assert!(line.contains(",,,,,,,"), "{line}");
+        assert_eq!(read_back(&line).pose, [0.0; 7]);
     }
 
     #[test]

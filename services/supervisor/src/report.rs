@@ -14,18 +14,22 @@ use anyhow::{Context, Result};
 use camera_reader::source::{configured_frames, FrameEntry, MaskList};
 use image::{imageops, GrayImage, Rgb, RgbImage};
 use pipeline::config::PipelineConfig;
+use plotters::style::RGBColor;
 use serde::Serialize;
 use slam::eval::{evaluate, EvalOptions, EvalSummary};
 use slam::trajectory::Trajectory;
 
-use crate::charts::{chart, histogram, stack, text, Series, Style, BLUE, GREEN, GREY, RED};
 use crate::latency::{self, StageSummary, STAGES};
 use crate::mask_record::{mask_file, read_rows, MaskRow};
 use crate::outputs::FrameRow;
+use crate::plots::{self, Chart, Histogram, Level, Series, Style, BLUE, GREEN, GREY, RED};
 
 pub const REPORT_FILE: &str = "report.md";
 pub const EVAL_FILE: &str = "eval.json";
 pub const PLOTS_DIR: &str = "plots";
+
+/// The world frame of the trajectories and the map, in words.
+pub const WORLD_FRAME: &str = "Poses (`trajectory.txt`, `frames.csv`) and `map.ply` are in the world frame of the SLAM map: the optical frame of the camera at the first tracked frame (x right, y down, z forward, metres); a pose is camera-to-world. The accuracy figures align the estimate to the ground truth first (SE(3)).";
 
 /// A ground-truth person is scored where it covers at least this many
 /// pixels (as `dynslam masks-eval`'s default).
@@ -69,8 +73,14 @@ impl ReportSummary {
     }
 }
 
-/// Writes the report of the run in `run_dir`; `rows` are its frames.
-pub fn write(run_dir: &Path, config: &PipelineConfig, rows: &[FrameRow]) -> Result<ReportSummary> {
+/// Writes the report of the run in `run_dir`; `rows` are its frames,
+/// `problems` what degraded or failed the run (the report opens with them).
+pub fn write(
+    run_dir: &Path,
+    config: &PipelineConfig,
+    rows: &[FrameRow],
+    problems: &[String],
+) -> Result<ReportSummary> {
     let plots = run_dir.join(PLOTS_DIR);
     std::fs::create_dir_all(&plots)
         .with_context(|| format!("cannot create {}", plots.display()))?;
@@ -88,17 +98,45 @@ pub fn write(run_dir: &Path, config: &PipelineConfig, rows: &[FrameRow]) -> Resu
             None
         }
     };
+    let mut views = None;
     if let Some(e) = &eval {
         std::fs::write(run_dir.join(EVAL_FILE), serde_json::to_string_pretty(e)?)?;
-        slam::plot::write_trajectory_png(&plots.join("trajectory.png"), &e.positions)?;
+        let (img, v) = plots::trajectory(
+            &e.positions,
+            &format!(
+                "Trajectory: estimate vs ground truth (ATE RMSE {:.4} m)",
+                e.ate_rmse_m
+            ),
+        )?;
+        plots::save(&img, &plots.join("trajectory.png"))?;
+        views = Some(v);
         let t0 = e.ate_series.first().map_or(0.0, |p| p.0);
-        let series = Series {
-            points: e.ate_series.iter().map(|(t, v)| (t - t0, *v)).collect(),
-            colour: RED,
-            style: Style::Line,
+        let spec = Chart {
+            title: "Absolute trajectory error over time",
+            x_desc: "time since the first frame (s)",
+            y_desc: "position error (m)",
+            series: vec![Series {
+                name: "ATE per frame",
+                points: e.ate_series.iter().map(|(t, v)| (t - t0, *v)).collect(),
+                colour: RED,
+                style: Style::Line,
+            }],
+            levels: vec![
+                Level {
+                    name: format!("RMSE {:.4} m", e.ate_rmse_m),
+                    value: e.ate_rmse_m,
+                    colour: BLUE,
+                },
+                Level {
+                    name: format!("median {:.4} m", e.ate_median_m),
+                    value: e.ate_median_m,
+                    colour: GREEN,
+                },
+            ],
+            y_max: None,
         };
-        save(
-            &chart(900, 260, &[series], None),
+        plots::save(
+            &plots::chart(&spec, 900, 320)?,
             &plots.join("ate_over_time.png"),
         )?;
     }
@@ -115,7 +153,8 @@ pub fn write(run_dir: &Path, config: &PipelineConfig, rows: &[FrameRow]) -> Resu
         None => (None, Vec::new()),
     };
     if !ious.is_empty() {
-        let by = |src: &str, colour| Series {
+        let by = |name, src: &str, colour| Series {
+            name,
             points: ious
                 .iter()
                 .filter(|(_, s, _)| s == src)
@@ -124,24 +163,24 @@ pub fn write(run_dir: &Path, config: &PipelineConfig, rows: &[FrameRow]) -> Resu
             colour,
             style: Style::Dots,
         };
-        save(
-            &chart(
-                900,
-                260,
-                &[
-                    by("segmenter", RED),
-                    by("propagator", BLUE),
-                    by("none", GREY),
-                ],
-                Some(1.0),
-            ),
-            &plots.join("mask_iou.png"),
-        )?;
+        let spec = Chart {
+            title: "Mask IoU against ground truth, per person and frame",
+            x_desc: "frame number",
+            y_desc: "IoU (0-1)",
+            series: vec![
+                by("segmenter masks", "segmenter", RED),
+                by("propagated masks", "propagator", BLUE),
+                by("no masks", "none", GREY),
+            ],
+            levels: Vec::new(),
+            y_max: Some(1.05),
+        };
+        plots::save(&plots::chart(&spec, 900, 320)?, &plots.join("mask_iou.png"))?;
     }
     let strip_made = match &frames {
         Some(f) => match mask_strip(run_dir, f, rows, &mask_rows, truth.as_ref()) {
             Ok(img) => {
-                save(&img, &plots.join("masks.png"))?;
+                plots::save(&img, &plots.join("masks.png"))?;
                 true
             }
             Err(e) => {
@@ -163,7 +202,6 @@ pub fn write(run_dir: &Path, config: &PipelineConfig, rows: &[FrameRow]) -> Resu
         "decode",
     ];
     let mut panels = Vec::new();
-    let mut panel_names = Vec::new();
     for name in shown {
         let i = STAGES
             .iter()
@@ -173,15 +211,20 @@ pub fn write(run_dir: &Path, config: &PipelineConfig, rows: &[FrameRow]) -> Resu
         if v.is_empty() {
             continue;
         }
-        let p99 = latency
-            .iter()
-            .find(|s| s.stage == name)
-            .map_or(1.0, |s| s.p99_ms);
-        panels.push(histogram(900, 160, &v, (p99 * 1.25).max(1.0), BLUE));
-        panel_names.push(name);
+        let stage = latency.iter().find(|s| s.stage == name);
+        panels.push(Histogram {
+            stage: name,
+            values_ms: v,
+            p50_ms: stage.map_or(0.0, |s| s.p50_ms),
+            p99_ms: stage.map_or(1.0, |s| s.p99_ms),
+        });
     }
+    let panel_names: Vec<&str> = panels.iter().map(|p| p.stage).collect();
     if !panels.is_empty() {
-        save(&stack(&panels), &plots.join("latency.png"))?;
+        plots::save(
+            &plots::histograms(&panels, "Latency per stage (ms per frame)")?,
+            &plots.join("latency.png"),
+        )?;
     }
 
     // report.md
@@ -190,10 +233,35 @@ pub fn write(run_dir: &Path, config: &PipelineConfig, rows: &[FrameRow]) -> Resu
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
     writeln!(md, "# dynslam run {title}\n")?;
+    if !problems.is_empty() {
+        writeln!(md, "> **This run is degraded or failed:**")?;
+        for p in problems {
+            writeln!(md, "> - {p}")?;
+        }
+        writeln!(md)?;
+    }
     writeln!(md, "Dataset: `{}`  ", dataset.display())?;
+    let camera = crate::run_dir::open(run_dir)
+        .map(|(info, _)| info.camera)
+        .unwrap_or_default();
+    let c = &config.camera;
     writeln!(
         md,
-        "Frames: {}, tracked {} ({:.1} %); SLAM backend `{}`, segmenter `{}`, propagator `{}`{}\n",
+        "Camera: {} (fx {} fy {} cx {} cy {}, readout {} s)  ",
+        if camera.is_empty() {
+            "config"
+        } else {
+            camera.as_str()
+        },
+        c.fx,
+        c.fy,
+        c.cx,
+        c.cy,
+        c.readout_s
+    )?;
+    writeln!(
+        md,
+        "Frames: {}, tracked {} ({:.1} %); backends: SLAM `{}`, segmenter `{}`, propagator `{}`{}\n",
         rows.len(),
         tracked,
         100.0 * tracked as f64 / rows.len().max(1) as f64,
@@ -207,6 +275,20 @@ pub fn write(run_dir: &Path, config: &PipelineConfig, rows: &[FrameRow]) -> Resu
         }
     )?;
     writeln!(md, "## Trajectory\n")?;
+    writeln!(md, "{WORLD_FRAME}\n")?;
+    let restarts = crate::run_dir::slam_restarts_at(run_dir);
+    if !restarts.is_empty() && config.services.slam.backend == "orb-rgbd" {
+        writeln!(
+            md,
+            "**Several world frames:** the SLAM service started again with an empty map at frame{} {} (a restart after it died, or `dynslam resume`). Each start begins a new world frame at that frame's camera, so the poses before and after are not in one frame and the ATE below mixes them.\n",
+            if restarts.len() > 1 { "s" } else { "" },
+            restarts
+                .iter()
+                .map(|s| s.to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        )?;
+    }
     match &eval {
         Some(e) => {
             writeln!(md, "| | value |\n|---|---|")?;
@@ -226,9 +308,16 @@ pub fn write(run_dir: &Path, config: &PipelineConfig, rows: &[FrameRow]) -> Resu
                 e.rpe_interval_rot_rmse_deg
             )?;
             writeln!(md, "![trajectory](plots/trajectory.png)\n")?;
-            writeln!(md, "Ground truth (grey) and the SE(3)-aligned estimate (red), top view x-y (left) and side view x-z (right), same scale on both axes; the green square is the start. Full figures in `{EVAL_FILE}`.\n")?;
+            writeln!(
+                md,
+                "Ground truth (grey) and the SE(3)-aligned estimate (coloured by its position error, scale on the right), in the ground truth's frame; views {}, same scale on both axes; the red square is the start. Full figures in `{EVAL_FILE}`.\n",
+                views.map(|v| v.describe()).unwrap_or_default()
+            )?;
             writeln!(md, "![ATE over time](plots/ate_over_time.png)\n")?;
-            writeln!(md, "Absolute position error (m, vertical) of each frame against time since the first frame (s, horizontal).\n")?;
+            writeln!(
+                md,
+                "Position error of each frame after the alignment, with its RMSE and median.\n"
+            )?;
         }
         None => writeln!(md, "No ground truth: no accuracy figures.\n")?,
     }
@@ -274,13 +363,10 @@ pub fn write(run_dir: &Path, config: &PipelineConfig, rows: &[FrameRow]) -> Resu
         )?;
         if !ious.is_empty() {
             writeln!(md, "![mask IoU](plots/mask_iou.png)\n")?;
-            writeln!(md, "IoU (vertical, 0-1) per person and frame (horizontal: frame number): segmenter red, propagator blue, frames without masks grey.\n")?;
         }
     }
     if strip_made {
         writeln!(md, "![masks](plots/masks.png)\n")?;
-        writeln!(md, "Six frames (number top left) with the masks SLAM used: segmenter masks tinted red, propagated masks blue{}.\n",
-            if truth.is_some() { ", ground-truth outlines green" } else { "" })?;
     }
     writeln!(md, "## Latency\n")?;
     writeln!(md, "```\n{}```\n", latency::format_table(&latency))?;
@@ -288,12 +374,12 @@ pub fn write(run_dir: &Path, config: &PipelineConfig, rows: &[FrameRow]) -> Resu
         writeln!(md, "![latency](plots/latency.png)\n")?;
         writeln!(
             md,
-            "Histograms of ms per frame (horizontal) for, top to bottom: {}. Counts vertical. Full trace: `trace.json` (chrome://tracing, Perfetto).\n",
+            "Stages, top to bottom: {}. Full trace: `trace.json` (chrome://tracing, Perfetto).\n",
             panel_names.join(", ")
         )?;
     }
     writeln!(md, "## Files\n")?;
-    writeln!(md, "- `trajectory.txt`, `keyframes.txt`: TUM format (timestamp tx ty tz qx qy qz qw), world from camera")?;
+    writeln!(md, "- `trajectory.txt`, `keyframes.txt`: TUM format (timestamp tx ty tz qx qy qz qw), world from camera (camera-to-world)")?;
     writeln!(md, "- `frames.csv`: one row per frame (state, route, pose, features, features removed by masks, inliers, stage timestamps)")?;
     writeln!(md, "- `masks/`, `masks.csv`: the label image SLAM got for each frame (0 background, i+1 instance i)")?;
     let map = run_dir.join(crate::run::MAP_FILE);
@@ -327,11 +413,6 @@ pub fn write(run_dir: &Path, config: &PipelineConfig, rows: &[FrameRow]) -> Resu
         masks: scores,
         latency,
     })
-}
-
-fn save(img: &RgbImage, path: &Path) -> Result<()> {
-    img.save(path)
-        .with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// ATE/RPE of `trajectory.txt` when the dataset has ground truth.
@@ -443,6 +524,7 @@ fn mask_strip(
         .collect();
     let (tw, th) = (320u32, 240u32);
     let mut out = RgbImage::from_pixel(3 * tw, 2 * th, Rgb([255, 255, 255]));
+    let mut labels = Vec::new();
     for (k, &seq) in picks.iter().enumerate() {
         let entry = frames
             .get(seq as usize)
@@ -455,7 +537,7 @@ fn mask_strip(
             if let Ok(m) = image::open(mask_file(run_dir, seq)) {
                 let m = m.into_luma8();
                 if m.dimensions() == (w, h) {
-                    let tint = if src == "segmenter" { RED } else { BLUE };
+                    let tint = rgb_of(if src == "segmenter" { RED } else { BLUE });
                     for (p, l) in rgb.pixels_mut().zip(m.pixels()) {
                         if l[0] != 0 {
                             for c in 0..3 {
@@ -475,29 +557,31 @@ fn mask_strip(
                             .iter()
                             .any(|&(a, b)| gt.get_pixel(a, b)[0] != l);
                         if edge {
-                            rgb.put_pixel(x, y, GREEN);
+                            rgb.put_pixel(x, y, rgb_of(GREEN));
                         }
                     }
                 }
             }
         }
-        let mut small = imageops::resize(&rgb, tw, th, imageops::FilterType::Triangle);
-        text(
-            &mut small,
-            5.0,
-            5.0,
-            &seq.to_string(),
-            3,
-            Rgb([255, 255, 0]),
-        );
-        imageops::replace(
-            &mut out,
-            &small,
-            ((k as u32 % 3) * tw) as i64,
-            ((k as u32 / 3) * th) as i64,
-        );
+        let small = imageops::resize(&rgb, tw, th, imageops::FilterType::Triangle);
+        let (x, y) = ((k as u32 % 3) * tw, (k as u32 / 3) * th);
+        imageops::replace(&mut out, &small, x as i64, y as i64);
+        labels.push((format!("frame {seq}"), (x as i32 + 6, y as i32 + 4)));
     }
-    Ok(out)
+    let mut legend = vec![("segmenter mask", RED), ("propagated mask", BLUE)];
+    if truth.is_some() {
+        legend.push(("ground-truth outline", GREEN));
+    }
+    plots::titled_picture(
+        &out,
+        "Masks SLAM used on six frames of the run",
+        &legend,
+        &labels,
+    )
+}
+
+fn rgb_of(c: RGBColor) -> Rgb<u8> {
+    Rgb([c.0, c.1, c.2])
 }
 
 /// Path of the report of a run folder.

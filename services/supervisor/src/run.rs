@@ -43,8 +43,13 @@ pub struct RunSummary {
     pub report: Option<crate::report::ReportSummary>,
     pub frames: u64,
     pub tracked: u64,
+    /// Real time: frames dropped because a newer one was tracked first.
+    pub dropped: u64,
     pub restarts: u64,
     pub interrupted: bool,
+    /// Why the run is degraded (a mask worker given up on: frames after it
+    /// went unmasked); empty for a run that had everything it was asked for.
+    pub degraded: Vec<String>,
     pub latency_table: String,
 }
 
@@ -494,6 +499,20 @@ impl Supervisor {
         Ok(someone_died)
     }
 
+    /// The mask workers given up on, in words (a degraded run).
+    fn degraded(&self) -> Vec<String> {
+        self.services
+            .iter()
+            .filter(|s| matches!(s.kind, ServiceKind::Segmenter | ServiceKind::Propagator))
+            .filter_map(|s| match &s.state {
+                SvcState::Failed { reason } => Some(format!(
+                    "{reason} (the frames after it were tracked without its masks)"
+                )),
+                _ => None,
+            })
+            .collect()
+    }
+
     fn write_status(&mut self, state: &str, error: Option<String>) {
         let status = Status {
             run_id: self.names.run_id().to_string(),
@@ -531,7 +550,10 @@ impl Supervisor {
         ] {
             let svc = self.svc(kind);
             let Some(mut child) = svc.child.take() else {
-                svc.state = SvcState::Stopped;
+                // A service given up on stays `failed` (the run's outcome says why).
+                if !svc.failed() {
+                    svc.state = SvcState::Stopped;
+                }
                 continue;
             };
             signal(child.id(), libc::SIGTERM);
@@ -595,6 +617,13 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
             .map(|r| r.seq);
         router.resume(last.next_keyframe, last_segment);
         tracing::info!(frames = old_rows.len(), "resuming run {}", info.run_id);
+        if config.services.slam.backend == "orb-rgbd" {
+            tracing::warn!(
+                "the resumed SLAM starts with an empty map: poses from frame {} on are in a new world frame (the report says so)",
+                last.seq + 1
+            );
+        }
+        run_dir::log_resume(&run_dir, last.seq + 1)?;
     }
     let mut services = Vec::new();
     for kind in ServiceKind::ALL {
@@ -629,16 +658,17 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
     }
 
     let interrupted = supervise(&mut sup)?;
-    sup.write_status(
-        if sup.fatal.is_some() {
-            "failed"
-        } else if interrupted {
-            "interrupted"
-        } else {
-            "completed"
-        },
-        sup.fatal.clone(),
-    );
+    let degraded = sup.degraded();
+    let (state, error) = if let Some(fatal) = &sup.fatal {
+        ("failed", Some(fatal.clone()))
+    } else if interrupted {
+        ("interrupted", None)
+    } else if !degraded.is_empty() {
+        ("degraded", Some(degraded.join("; ")))
+    } else {
+        ("completed", None)
+    };
+    sup.write_status(state, error);
 
     // Every process of the run is gone: nothing of it may stay in /dev/shm.
     cleanup_dead_nodes(&names)?;
@@ -649,7 +679,7 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
         tracing::debug!(files = ?left, "removing the run's remaining iceoryx2 files");
         remove_run_files(&names)?;
     }
-    let summary = finish_outputs(&sup, interrupted)?;
+    let summary = finish_outputs(&sup, interrupted, degraded)?;
     if let Some(fatal) = sup.fatal {
         bail!("{fatal}");
     }
@@ -752,6 +782,13 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
                 sup.fatal = Some(reason.clone());
             }
         }
+        if sup.config.run.require_masks && sup.fatal.is_none() {
+            if let Some(reason) = sup.degraded().first() {
+                sup.fatal = Some(format!(
+                    "{reason}; run.require_masks (--require-masks) makes this a failure"
+                ));
+            }
+        }
         if sup.fatal.is_some() {
             break;
         }
@@ -793,7 +830,11 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
 }
 
 /// Trajectories, latency summary and trace, derived from `frames.csv`.
-fn finish_outputs(sup: &Supervisor, interrupted: bool) -> Result<RunSummary> {
+fn finish_outputs(
+    sup: &Supervisor,
+    interrupted: bool,
+    degraded: Vec<String>,
+) -> Result<RunSummary> {
     let rows: Vec<FrameRow> = sup.rows.values().cloned().collect();
     let dir = &sup.run_dir;
     let tracked = write_tum(&dir.join("trajectory.txt"), &rows, FrameRow::is_tracked)?;
@@ -814,7 +855,7 @@ fn finish_outputs(sup: &Supervisor, interrupted: bool) -> Result<RunSummary> {
     )?;
     let table = latency::format_table(&summary);
     // The report never fails a run whose outputs are written.
-    let report = match crate::report::write(dir, &sup.config, &rows) {
+    let report = match crate::report::write(dir, &sup.config, &rows, &degraded) {
         Ok(r) => Some(r),
         Err(e) => {
             tracing::warn!("cannot write the report: {e:#}");
@@ -826,8 +867,10 @@ fn finish_outputs(sup: &Supervisor, interrupted: bool) -> Result<RunSummary> {
         run_dir: dir.clone(),
         frames: rows.len() as u64,
         tracked: tracked as u64,
+        dropped: rows.iter().filter(|r| r.state == "dropped").count() as u64,
         restarts: sup.restarts,
         interrupted,
+        degraded,
         latency_table: table,
     })
 }

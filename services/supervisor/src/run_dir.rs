@@ -11,6 +11,8 @@ pub const CONFIG_FILE: &str = "config.toml";
 pub const RUN_FILE: &str = "run.json";
 pub const STATUS_FILE: &str = "status.json";
 pub const RESTARTS_FILE: &str = "restarts.log";
+/// One line per `dynslam resume` of the run: `next_seq N`.
+pub const RESUMES_FILE: &str = "resumes.log";
 
 /// Identity of a run, written once at its start.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -18,6 +20,9 @@ pub struct RunInfo {
     pub run_id: String,
     pub dataset: PathBuf,
     pub created_unix_s: u64,
+    /// The camera the run uses and why ("tum-fr2: dataset folder name ...").
+    #[serde(default)]
+    pub camera: String,
 }
 
 /// Live state of a run for people and tests (`status.json`), rewritten
@@ -58,8 +63,14 @@ pub fn new_run_id() -> String {
     )
 }
 
-/// Creates `output_dir/<run id>` with the resolved config and run info.
-pub fn create(output_dir: &Path, run_id: &str, config: &PipelineConfig) -> Result<PathBuf> {
+/// Creates `output_dir/<run id>` with the resolved config and run info;
+/// `camera` says which camera the config's `[camera]` is and why.
+pub fn create(
+    output_dir: &Path,
+    run_id: &str,
+    config: &PipelineConfig,
+    camera: &str,
+) -> Result<PathBuf> {
     let dir = output_dir.join(run_id);
     if dir.exists() {
         bail!("run folder {} already exists", dir.display());
@@ -77,6 +88,7 @@ pub fn create(output_dir: &Path, run_id: &str, config: &PipelineConfig) -> Resul
             .duration_since(std::time::UNIX_EPOCH)
             .map(|d| d.as_secs())
             .unwrap_or(0),
+        camera: camera.to_string(),
     };
     std::fs::write(dir.join(RUN_FILE), serde_json::to_string_pretty(&info)?)?;
     Ok(dir)
@@ -125,6 +137,39 @@ pub fn log_restart(dir: &Path, line: &str) -> Result<()> {
     Ok(())
 }
 
+/// Records that a supervisor resumed the run at `next_seq`.
+pub fn log_resume(dir: &Path, next_seq: u64) -> Result<()> {
+    use std::io::Write;
+    let mut f = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(dir.join(RESUMES_FILE))?;
+    writeln!(f, "next_seq {next_seq}")?;
+    Ok(())
+}
+
+/// The frames at which the SLAM service started again with an empty map:
+/// its restarts (`restarts.log`) and the run's resumes (`resumes.log`).
+pub fn slam_restarts_at(dir: &Path) -> Vec<u64> {
+    let seqs = |file: &str, service: Option<&str>| -> Vec<u64> {
+        std::fs::read_to_string(dir.join(file))
+            .unwrap_or_default()
+            .lines()
+            .filter(|l| service.is_none_or(|s| l.starts_with(&format!("{s} "))))
+            .filter_map(|l| {
+                let mut words = l.split_whitespace();
+                words.position(|w| w == "next_seq")?;
+                words.next()?.parse().ok()
+            })
+            .collect()
+    };
+    let mut at = seqs(RESTARTS_FILE, Some("slam"));
+    at.extend(seqs(RESUMES_FILE, None));
+    at.sort_unstable();
+    at.dedup();
+    at
+}
+
 pub fn restart_count(dir: &Path) -> u64 {
     std::fs::read_to_string(dir.join(RESTARTS_FILE))
         .map(|t| t.lines().filter(|l| !l.trim().is_empty()).count() as u64)
@@ -148,14 +193,17 @@ mod tests {
         let _ = std::fs::remove_dir_all(&base);
         let mut cfg = PipelineConfig::parse("").unwrap();
         cfg.source.path = PathBuf::from("/data/x");
-        let dir = create(&base, "abc", &cfg).unwrap();
+        let dir = create(&base, "abc", &cfg, "tum-fr1").unwrap();
         let (info, back) = open(&dir).unwrap();
         assert_eq!(info.run_id, "abc");
+        assert_eq!(info.camera, "tum-fr1");
         assert_eq!(back, cfg);
-        assert!(create(&base, "abc", &cfg).is_err());
-        log_restart(&dir, "a").unwrap();
-        log_restart(&dir, "b").unwrap();
+        assert!(create(&base, "abc", &cfg, "tum-fr1").is_err());
+        log_restart(&dir, "segmenter pid 7 killed by signal 9 next_seq 12").unwrap();
+        log_restart(&dir, "slam pid 8 killed by signal 9 next_seq 40").unwrap();
         assert_eq!(restart_count(&dir), 2);
+        log_resume(&dir, 25).unwrap();
+        assert_eq!(slam_restarts_at(&dir), vec![25, 40]);
         std::fs::remove_dir_all(&base).ok();
     }
 }

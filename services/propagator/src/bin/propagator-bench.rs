@@ -22,7 +22,7 @@ use shared_types::Instance;
 struct Args {
     #[arg(
         long,
-        default_value = "../shared/data/tum/rgbd_dataset_freiburg1_rpy_first300"
+        default_value_os_t = pipeline::provision::shared_tum()
     )]
     dataset: PathBuf,
     #[arg(long, default_value_t = 200)]

@@ -20,7 +20,7 @@ struct Args {
     /// TUM RGB-D folder whose frames are segmented.
     #[arg(
         long,
-        default_value = "../shared/data/tum/rgbd_dataset_freiburg1_rpy_first300"
+        default_value_os_t = pipeline::provision::shared_tum()
     )]
     dataset: PathBuf,
     #[arg(long, default_value_t = 100)]
@@ -28,15 +28,17 @@ struct Args {
     /// ONNX Runtime intra-op threads.
     #[arg(long, default_value_t = 2)]
     threads: usize,
-    #[arg(long, default_value = "configs/pipeline.toml")]
-    config: PathBuf,
+    /// Pipeline configuration (default: the built-in defaults, i.e. the
+    /// shipped configs/pipeline.toml).
+    #[arg(long)]
+    config: Option<PathBuf>,
     #[arg(long, default_value = "bench-results/models.json")]
     out: PathBuf,
 }
 
 fn main() -> Result<()> {
     let args = Args::parse();
-    let config = PipelineConfig::load(&args.config)?;
+    let config = PipelineConfig::load_or_default(args.config.as_deref())?;
     let mut cfg = config.services.segmenter.clone();
     cfg.threads = Some(args.threads);
     let settings = YoloSettings::from_config(&cfg)?;

@@ -28,10 +28,12 @@ use slam::trajectory::Trajectory;
 #[derive(Debug, Parser)]
 #[command(about = "SLAM core: ms per frame per step, tracking and accuracy")]
 struct Args {
-    #[arg(default_value = "../shared/data/tum/rgbd_dataset_freiburg1_rpy_first300")]
+    #[arg(default_value_os_t = pipeline::provision::shared_tum())]
     dataset: PathBuf,
-    #[arg(long, default_value = "configs/pipeline.toml")]
-    config: PathBuf,
+    /// Pipeline configuration (default: the built-in defaults, i.e. the
+    /// shipped configs/pipeline.toml).
+    #[arg(long)]
+    config: Option<PathBuf>,
     /// Use the ground-truth masks (masks.txt) of a synthesised sequence.
     #[arg(long)]
     masks: bool,
@@ -89,7 +91,7 @@ fn orb_backend(name: &str) -> Result<OrbBackend> {
 
 fn main() -> Result<()> {
     let args = Args::parse();
-    let cfg = PipelineConfig::load(&args.config)?;
+    let cfg = PipelineConfig::load_or_default(args.config.as_deref())?;
     let mut camera = Camera::from_config(&cfg.camera, cfg.source.depth_scale as f64);
     if let Some(r) = args.readout {
         anyhow::ensure!(

@@ -80,7 +80,7 @@ fn real_segmenter_runs_on_keyframes_and_its_latency_is_reported() {
 }
 
 #[test]
-fn missing_model_leaves_slam_running_with_frames_unmasked() {
+fn missing_model_degrades_the_run_and_slam_goes_on_with_frames_unmasked() {
     let dir = scratch("nomodel");
     let config = write_config(
         &dir,
@@ -98,7 +98,7 @@ fn missing_model_leaves_slam_running_with_frames_unmasked() {
         &["--limit", "12"],
     );
     let stderr = run.stderr();
-    assert!(run.success(), "{stderr}");
+    assert_eq!(run.output.status.code(), Some(3), "degraded: {stderr}");
     assert!(
         stderr.contains("model file missing.onnx not found"),
         "{stderr}"
@@ -118,6 +118,11 @@ fn missing_model_leaves_slam_running_with_frames_unmasked() {
         serde_json::from_str(&std::fs::read_to_string(run.run_dir.join("status.json")).unwrap())
             .unwrap();
     assert_eq!(status["restarts"], 0);
+    assert_eq!(status["state"], "degraded");
+    assert!(
+        status["error"].as_str().unwrap().contains("missing.onnx"),
+        "{status}"
+    );
     assert_no_shm_left(&run.run_id);
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -275,13 +275,14 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                 pipeline::cameras::choose(camera.as_deref(), &cfg.source.path, &cfg.camera)
                     .map_err(anyhow::Error::msg)?;
             if choice.name != pipeline::cameras::FROM_CONFIG && choice.camera != cfg.camera {
-                tracing::info!(
-                    "camera {} ({}) replaces the config's [camera]; --camera config keeps the config's",
+                tracing::warn!(
+                    "camera {} ({}) differs from the config's [camera] and replaces it; --camera config keeps the config's",
                     choice.name,
                     choice.reason
                 );
+            } else {
+                tracing::info!("camera {}: {}", choice.name, choice.reason);
             }
-            tracing::info!("camera {}: {}", choice.name, choice.reason);
             cfg.camera = choice.camera.clone();
             PipelineConfig::parse(&cfg.to_toml()?)
                 .map_err(|e| anyhow::anyhow!("the resolved configuration: {e}"))?;

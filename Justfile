@@ -70,10 +70,10 @@ test: build setup evo fixtures
 eval gt est *args="": build
     ./target/release/dynslam eval --gt "{{gt}}" --est "{{est}}" {{args}}
 
-# Model speed: segmenter and propagator ms per 640x480 frame, 2 threads (writes bench-results/).
+# Model speed: segmenter and propagator ms per 640x480 frame, 2 threads (writes bench-results/); sam2 on the tiny test graphs beside lk (our code's cost, not SAM 2's).
 bench-models: build setup
     ./target/release/segmenter-bench --threads 2
-    ./target/release/propagator-bench
+    ./target/release/propagator-bench --sam2-encoder tests/fixtures/tiny_sam2_encoder.onnx --sam2-decoder tests/fixtures/tiny_sam2_decoder.onnx
 
 # SLAM core speed and accuracy on a TUM folder (default: the shared sequence): ms per frame per step, peak memory, ATE.
 bench-slam dataset=tum *args="": build

@@ -126,3 +126,69 @@ fn missing_model_degrades_the_run_and_slam_goes_on_with_frames_unmasked() {
     assert_no_shm_left(&run.run_id);
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn sam2_backend_propagates_in_the_pipeline_on_tiny_graphs() {
+    // The default scene (rendered, with ground-truth person masks): the
+    // ground-truth segmenter prompts on keyframes, `sam2` (the tiny graphs of
+    // tests/reference/make_tiny_sam2.py through real ONNX Runtime) follows
+    // each person by its box on the frames between.
+    let dir = scratch("sam2-pipeline");
+    let fixtures = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures");
+    let sha = |f: &str| pipeline::provision::sha256_of(&fixtures.join(f)).unwrap();
+    let config = write_config(
+        &dir,
+        &format!(
+            "[services.slam]\nbackend = \"scripted\"\nkeyframe_every = 5\n\
+             [services.segmenter]\nbackend = \"ground-truth\"\n\
+             [services.propagator]\nbackend = \"sam2\"\nthreads = 1\n\
+             model = \"tiny_sam2_encoder.onnx\"\nmodel_path = \"{}\"\nmodel_sha256 = \"{}\"\n\
+             decoder_model = \"tiny_sam2_decoder.onnx\"\ndecoder_model_path = \"{}\"\ndecoder_model_sha256 = \"{}\"\n",
+            fixtures.join("tiny_sam2_encoder.onnx").display(),
+            sha("tiny_sam2_encoder.onnx"),
+            fixtures.join("tiny_sam2_decoder.onnx").display(),
+            sha("tiny_sam2_decoder.onnx"),
+        ),
+    );
+    let id = format!("sam2{}", std::process::id());
+    let out = std::process::Command::new(dynslam())
+        .arg("run")
+        .arg("--config")
+        .arg(&config)
+        .arg("--output-dir")
+        .arg(dir.join("runs"))
+        .args(["--run-id", &id, "--limit", "40"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "not degraded, not failed:\n{stderr}");
+    assert!(
+        stderr.contains("propagator ready with model 'sam2'"),
+        "{stderr}"
+    );
+    let run_dir = dir.join("runs").join(&id);
+    let rows = read_rows(&run_dir);
+    assert_eq!(rows.len(), 40);
+    let propagated: Vec<_> = rows.iter().filter(|r| r["route"] == "propagate").collect();
+    assert!(propagated.len() >= 20, "{}", propagated.len());
+    assert!(propagated.iter().all(|r| r["mask_source"] == "propagator"));
+    // The propagated masks hold people (pixels), and they removed features.
+    let masks = std::fs::read_to_string(run_dir.join("masks.csv")).unwrap();
+    let header: Vec<&str> = masks.lines().next().unwrap().split(',').collect();
+    let (src, px) = (
+        header.iter().position(|h| *h == "source").unwrap(),
+        header.iter().position(|h| *h == "masked_px").unwrap(),
+    );
+    let with_people = masks
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect::<Vec<_>>())
+        .filter(|f| f[src] == "propagator" && f[px].parse::<u64>().unwrap() > 1000)
+        .count();
+    assert!(
+        with_people >= 10,
+        "propagated masks with people: {with_people}\n{masks}"
+    );
+    assert_no_shm_left(&id);
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -102,6 +102,32 @@ pub struct OnnxRuntimeConfig {
     pub library: Option<PathBuf>,
     /// Expected sha256 of the library (empty: not checked).
     pub sha256: String,
+    /// Execution providers in order of preference. One the library lacks is
+    /// skipped with a warning when `cpu` is listed, an error otherwise.
+    pub providers: Vec<Provider>,
+}
+
+/// An ONNX Runtime execution provider (`[onnxruntime] providers`).
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum Provider {
+    /// ONNX Runtime's own CPU kernels (every build has them).
+    Cpu,
+    /// NVIDIA CUDA (a GPU build of ONNX Runtime, e.g. the onnxruntime-gpu wheel or JetPack's).
+    Cuda,
+    /// NVIDIA TensorRT (a TensorRT-enabled build).
+    #[serde(rename = "tensorrt")]
+    TensorRt,
+}
+
+impl Provider {
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            Provider::Cpu => "cpu",
+            Provider::Cuda => "cuda",
+            Provider::TensorRt => "tensorrt",
+        }
+    }
 }
 
 impl Default for OnnxRuntimeConfig {
@@ -109,6 +135,7 @@ impl Default for OnnxRuntimeConfig {
         Self {
             library: None,
             sha256: "fc44112fbe06d7d689c57e11d3862031f64711007e4ee020f8eed5185fd2c1d3".into(),
+            providers: vec![Provider::Cpu],
         }
     }
 }
@@ -341,6 +368,18 @@ pub struct ServiceConfig {
     /// Model backends: ONNX Runtime intra-op threads; SLAM: feature
     /// extraction threads (pyramid levels in parallel; default 2).
     pub threads: Option<usize>,
+    /// Two-part models (SAM 2: `model` is the image encoder): the prompt /
+    /// mask decoder's file name, explicit path and sha256.
+    pub decoder_model: String,
+    pub decoder_model_path: Option<PathBuf>,
+    pub decoder_model_sha256: String,
+    /// SAM 2 propagator: an object ends when its best predicted IoU falls
+    /// below this, or its area below `min_area_ratio` of its keyframe area.
+    pub min_predicted_iou: Option<f32>,
+    pub min_area_ratio: Option<f32>,
+    /// SAM 2 propagator: positive points sampled inside an object's mask
+    /// for each prompt (besides its box).
+    pub prompt_points: Option<u32>,
 }
 
 /// A configuration error that names the file, the key path and the problem.
@@ -432,6 +471,12 @@ impl PipelineConfig {
         self.camera
             .validate()
             .map_err(|e| format!("{e} (in [camera])"))?;
+        if self.onnxruntime.providers.is_empty() {
+            return Err(
+                "key `onnxruntime.providers`: empty; list at least one of cpu, cuda, tensorrt"
+                    .into(),
+            );
+        }
         if self.source.kind == SourceKind::Images && self.services.slam.backend == "orb-rgbd" {
             return Err(
                 "key `source.kind`: \"images\" plays frames without depth, and \
@@ -615,6 +660,10 @@ mod tests {
             svc.input_size = Some(320);
             svc.threads = Some(1);
             svc.classes = vec!["person".into()];
+            svc.decoder_model_path = Some("/x".into());
+            svc.min_predicted_iou = Some(0.5);
+            svc.min_area_ratio = Some(0.2);
+            svc.prompt_points = Some(3);
         }
         let mut keys = Vec::new();
         leaf_keys(&toml::Table::try_from(&full).unwrap(), "", &mut keys);
@@ -693,6 +742,24 @@ mod tests {
             "{err}"
         );
         assert!(PipelineConfig::parse("[run\n").is_err());
+    }
+
+    #[test]
+    fn execution_providers_are_checked_by_name() {
+        let c = PipelineConfig::parse("[onnxruntime]\nproviders = [\"cuda\", \"cpu\"]\n").unwrap();
+        assert_eq!(c.onnxruntime.providers, vec![Provider::Cuda, Provider::Cpu]);
+        assert_eq!(
+            PipelineConfig::default().onnxruntime.providers,
+            vec![Provider::Cpu]
+        );
+        let err = PipelineConfig::parse("[onnxruntime]\nproviders = [\"gpu\"]\n").unwrap_err();
+        assert!(
+            err.contains("onnxruntime.providers") && err.contains("line 2"),
+            "{err}"
+        );
+        assert!(err.contains("cuda") && err.contains("tensorrt"), "{err}");
+        let err = PipelineConfig::parse("[onnxruntime]\nproviders = []\n").unwrap_err();
+        assert!(err.contains("onnxruntime.providers"), "{err}");
     }
 
     #[test]

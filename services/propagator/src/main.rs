@@ -9,6 +9,7 @@ use clap::Parser;
 use pipeline::mask_worker::{self, model_from_config, ModelFactory};
 use pipeline::runtime::{run_service, ServiceArgs};
 use propagator::propagate::{LkPropagator, PropagatorParams};
+use propagator::sam2::{Sam2Propagator, Sam2Settings};
 use shared_types::{MaskSource, ServiceKind};
 
 #[derive(Debug, Parser)]
@@ -23,7 +24,12 @@ fn main() -> ExitCode {
     run_service(ServiceKind::Propagator, &args.service, |ctx| {
         let lk: &ModelFactory =
             &|_ctx| Ok(Box::new(LkPropagator::new(PropagatorParams::default())));
-        let model = model_from_config(&ctx, &[("lk", lk)])?;
+        let sam2: &ModelFactory = &|ctx| {
+            let settings = Sam2Settings::from_config(&ctx.config.services.propagator)?;
+            let env = onnx_runtime::init_runtime(&ctx.config.onnxruntime)?;
+            Ok(Box::new(Sam2Propagator::load(env, settings)?))
+        };
+        let model = model_from_config(&ctx, &[("lk", lk), ("sam2", sam2)])?;
         mask_worker::run(ctx, MaskSource::Propagator, model)
     })
 }

@@ -1,14 +1,14 @@
-//! The YOLOv8-seg backend: ONNX Runtime (loaded from the provisioned shared
-//! library) running a verified model file; decoding in [`crate::yolo`].
+//! The YOLOv8-seg backend: ONNX Runtime (`onnx_runtime`: the provisioned
+//! library, execution providers) running a verified model file; decoding in
+//! [`crate::yolo`].
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{bail, Context, Result};
 use ort::session::Session;
 use ort::value::TensorRef;
-use pipeline::config::{OnnxRuntimeConfig, ServiceConfig};
+use pipeline::config::ServiceConfig;
 use pipeline::mask_worker::MaskModel;
-use pipeline::provision::{locate_model, locate_onnxruntime, verify};
 use pipeline::runtime::InputError;
 use pipeline::views::FrameView;
 use shared_types::Instance;
@@ -87,62 +87,7 @@ impl YoloSettings {
     }
 }
 
-/// Locates a model file and checks its sha256; failures are input errors.
-pub fn verified_model(file: &str, sha256: &str, configured: Option<&Path>) -> Result<PathBuf> {
-    let path = locate_model(file, configured).map_err(|e| InputError(e.to_string()))?;
-    verify(&path, sha256).map_err(|e| InputError(e.to_string()))?;
-    Ok(path)
-}
-
-/// An ONNX Runtime session on a verified model file; a file ONNX Runtime
-/// cannot load is an input error naming it.
-pub fn open_session(
-    env: &ort::environment::Environment,
-    model: &Path,
-    threads: usize,
-) -> Result<Session> {
-    let session = Session::builder(env)
-        .and_then(|b| b.with_intra_threads(threads.max(1)).map_err(Into::into))
-        .and_then(|mut b| b.commit_from_file(model));
-    session.map_err(|e| {
-        InputError(format!(
-            "{}: cannot load the ONNX model: {e}",
-            model.display()
-        ))
-        .into()
-    })
-}
-
-/// The process's ONNX Runtime environment: ONNX Runtime allows one per
-/// process, so it is created on first use and shared.
-static RUNTIME: std::sync::Mutex<Option<ort::environment::Environment>> =
-    std::sync::Mutex::new(None);
-
-/// Loads ONNX Runtime from the provisioned library (verified) once per process.
-pub fn init_runtime(cfg: &OnnxRuntimeConfig) -> Result<ort::environment::Environment> {
-    let lib = locate_onnxruntime(cfg.library.as_deref()).map_err(|e| InputError(e.to_string()))?;
-    if !cfg.sha256.is_empty() {
-        verify(&lib, &cfg.sha256).map_err(|e| InputError(e.to_string()))?;
-    }
-    let mut slot = RUNTIME
-        .lock()
-        .map_err(|_| anyhow!("ONNX Runtime initialisation panicked earlier"))?;
-    if let Some(env) = slot.as_ref() {
-        return Ok(env.clone());
-    }
-    let env = load_runtime(&lib)?;
-    *slot = Some(env.clone());
-    Ok(env)
-}
-
-fn load_runtime(lib: &Path) -> Result<ort::environment::Environment> {
-    let builder = ort::init_from(lib)
-        .map_err(|e| InputError(format!("{}: cannot load ONNX Runtime: {e}", lib.display())))?;
-    builder
-        .with_name("dynslam")
-        .build()
-        .map_err(|e| anyhow!("cannot create the ONNX Runtime environment: {e}"))
-}
+pub use onnx_runtime::{init_runtime, open_session, verified_model};
 
 /// YOLOv8-seg instance segmentation.
 pub struct YoloSeg {
@@ -155,6 +100,13 @@ pub struct YoloSeg {
 impl YoloSeg {
     pub fn load(env: ort::environment::Environment, settings: YoloSettings) -> Result<Self> {
         let session = open_session(&env, &settings.model, settings.threads)?;
+        onnx_runtime::check_signature(
+            &session,
+            &settings.model,
+            "YOLOv8-seg export",
+            &["images"],
+            &["output0", "output1"],
+        )?;
         let n = settings.input_size;
         let mut me = Self {
             _env: env,

@@ -50,11 +50,24 @@ fn small_masks_are_pasted_into_their_boxes() {
     let names: Vec<_> = inst.iter().map(|i| CLASSES[i.class_id as usize]).collect();
     assert_eq!(names, vec!["person", "car"]);
     assert_eq!(inst[0].bbox, [8.0, 4.0, 24.0, 36.0]);
-    // Person: left half of a 16x32 box = 8x32 pixels; car: the whole 30x20 box.
-    assert_eq!(count(&labels, 1), 8 * 32);
-    assert_eq!(count(&labels, 2), 30 * 20);
-    assert_eq!(labels[10 * 64 + 9], 1);
-    assert_eq!(labels[10 * 64 + 20], 0);
+    // Pasted as torchvision's paste_masks_in_image does (worked out by hand
+    // from roi_heads.py): the 28x28 mask padded to 30x30, the box expanded by
+    // 30/28 and truncated, the padded mask resized to the box + 1 pixel.
+    // Person, box (8, 4, 24, 36) -> (7, 2, 24, 37), 18x36 pixels: columns
+    // 1..=8 of it reach >= 0.5 on the left half (x 8..16), rows 1..=34 (y 3..37):
+    // one row more above and below the box than a plain box paste.
+    assert_eq!(count(&labels, 1), 8 * 34);
+    assert_eq!(labels[3 * 64 + 9], 1);
+    assert_eq!(labels[2 * 64 + 9], 0);
+    assert_eq!(labels[36 * 64 + 15], 1);
+    assert_eq!(labels[10 * 64 + 16], 0);
+    // Car, box (30, 10, 60, 30) -> (28, 9, 61, 30), 34x22 pixels, whole mask at
+    // 0.8: columns 1..=32 (x 29..61) and rows 1..=20 (y 10..30) reach 0.5.
+    assert_eq!(count(&labels, 2), 32 * 20);
+    assert_eq!(labels[10 * 64 + 29], 2);
+    assert_eq!(labels[10 * 64 + 28], 0);
+    assert_eq!(labels[29 * 64 + 60], 2);
+    assert_eq!(labels[30 * 64 + 60], 0);
     assert_eq!(labels[3 * 64 + 3], 0, "low-score detection not painted");
 }
 

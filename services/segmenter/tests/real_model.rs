@@ -158,6 +158,7 @@ fn bad_model_files_and_runtime_give_named_errors() {
     let err = init_runtime(&OnnxRuntimeConfig {
         library: Some(dir.join("libonnxruntime.so")),
         sha256: String::new(),
+        ..Default::default()
     });
     let err = err.err().unwrap().to_string();
     assert!(

@@ -286,6 +286,18 @@ pub struct ServicesConfig {
     pub slam: ServiceConfig,
 }
 
+/// The movable COCO classes masked by default (DESIGN section 1).
+pub const DEFAULT_DYNAMIC_CLASSES: [&str; 8] = [
+    "person",
+    "bicycle",
+    "car",
+    "motorcycle",
+    "bus",
+    "truck",
+    "dog",
+    "cat",
+];
+
 /// The product: the RGB-D SLAM core, YOLOv8-seg on keyframes, LK between
 /// them (the same values as the shipped `configs/pipeline.toml`, checked by
 /// a test). The test doubles (`scripted`, `none`, `ground-truth`) run only
@@ -299,18 +311,7 @@ impl Default for ServicesConfig {
                 model: "yolov8n-seg_f32.onnx".into(),
                 model_sha256: "38459a0adc72f8b13be368e641b3c1a9815799b9bddbb86e0140aa18ec059942"
                     .into(),
-                classes: [
-                    "person",
-                    "bicycle",
-                    "car",
-                    "motorcycle",
-                    "bus",
-                    "truck",
-                    "dog",
-                    "cat",
-                ]
-                .map(String::from)
-                .to_vec(),
+                classes: DEFAULT_DYNAMIC_CLASSES.map(String::from).to_vec(),
                 score_threshold: Some(0.25),
                 iou_threshold: Some(0.7),
                 input_size: Some(320),

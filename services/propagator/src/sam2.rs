@@ -137,20 +137,24 @@ impl Sam2Settings {
     }
 }
 
+/// Bilinear sampling along one axis with pixel centres aligned: output
+/// index `d` of `n_out` reads the input of `n_in` cells at cells `i0`, `i1`
+/// with weight `t` on `i1` (clamped at both ends).
+fn bilinear_source(d: usize, n_in: usize, n_out: usize) -> (usize, usize, f32) {
+    let s = ((d as f32 + 0.5) * n_in as f32 / n_out as f32 - 0.5).clamp(0.0, (n_in - 1) as f32);
+    let i0 = s as usize;
+    (i0, (i0 + 1).min(n_in - 1), s.fract())
+}
+
 /// The encoder's input: RGB8 `w x h` resized (bilinear, pixel centres
 /// aligned, no letterbox: SAM 2 resizes to a square) to `n x n`, scaled to
 /// 0..1 and normalised per channel, planar (CHW).
 pub fn preprocess(rgb: &[u8], w: usize, h: usize, n: usize, out: &mut [f32]) {
-    let (sx, sy) = (w as f32 / n as f32, h as f32 / n as f32);
     let plane = n * n;
     for y in 0..n {
-        let fy = ((y as f32 + 0.5) * sy - 0.5).clamp(0.0, (h - 1) as f32);
-        let (y0, ty) = (fy as usize, fy.fract());
-        let y1 = (y0 + 1).min(h - 1);
+        let (y0, y1, ty) = bilinear_source(y, h, n);
         for x in 0..n {
-            let fx = ((x as f32 + 0.5) * sx - 0.5).clamp(0.0, (w - 1) as f32);
-            let (x0, tx) = (fx as usize, fx.fract());
-            let x1 = (x0 + 1).min(w - 1);
+            let (x0, x1, tx) = bilinear_source(x, w, n);
             for c in 0..3 {
                 let p = |xx: usize, yy: usize| rgb[(yy * w + xx) * 3 + c] as f32;
                 let top = p(x0, y0) * (1.0 - tx) + p(x1, y0) * tx;
@@ -289,16 +293,11 @@ pub fn mask_logits(mask: &[bool], w: usize, h: usize, lw: usize, lh: usize) -> V
 /// encoder's square input does) upsampled bilinearly to the `w x h` frame
 /// and thresholded at 0 (SAM's mask threshold).
 pub fn upsample_mask(logits: &[f32], lw: usize, lh: usize, w: usize, h: usize) -> Vec<bool> {
-    let (sx, sy) = (lw as f32 / w as f32, lh as f32 / h as f32);
     let mut out = vec![false; w * h];
     for y in 0..h {
-        let fy = ((y as f32 + 0.5) * sy - 0.5).clamp(0.0, (lh - 1) as f32);
-        let (y0, ty) = (fy as usize, fy.fract());
-        let y1 = (y0 + 1).min(lh - 1);
+        let (y0, y1, ty) = bilinear_source(y, lh, h);
         for x in 0..w {
-            let fx = ((x as f32 + 0.5) * sx - 0.5).clamp(0.0, (lw - 1) as f32);
-            let (x0, tx) = (fx as usize, fx.fract());
-            let x1 = (x0 + 1).min(lw - 1);
+            let (x0, x1, tx) = bilinear_source(x, lw, w);
             let l = |xx: usize, yy: usize| logits[yy * lw + xx];
             let top = l(x0, y0) * (1.0 - tx) + l(x1, y0) * tx;
             let bottom = l(x0, y1) * (1.0 - tx) + l(x1, y1) * tx;

@@ -99,16 +99,7 @@ pub fn class_of_category(category: i64) -> Option<usize> {
 }
 
 /// The movable classes masked by default (DESIGN section 1).
-pub const DEFAULT_DYNAMIC: [&str; 8] = [
-    "person",
-    "bicycle",
-    "car",
-    "motorcycle",
-    "bus",
-    "truck",
-    "dog",
-    "cat",
-];
+pub use pipeline::config::DEFAULT_DYNAMIC_CLASSES as DEFAULT_DYNAMIC;
 
 /// The configured dynamic classes (default: [`DEFAULT_DYNAMIC`]) as class
 /// ids; an unknown name is a configuration error naming the key.

@@ -126,26 +126,25 @@ pub fn write_status(dir: &Path, status: &Status) -> Result<()> {
     Ok(())
 }
 
-/// Appends one restart record; the number of lines is the run's restart count.
-pub fn log_restart(dir: &Path, line: &str) -> Result<()> {
+fn append_line(dir: &Path, file: &str, line: &str) -> Result<()> {
     use std::io::Write;
+    let path = dir.join(file);
     let mut f = std::fs::OpenOptions::new()
         .create(true)
         .append(true)
-        .open(dir.join(RESTARTS_FILE))?;
-    writeln!(f, "{line}")?;
-    Ok(())
+        .open(&path)
+        .with_context(|| format!("cannot open {}", path.display()))?;
+    writeln!(f, "{line}").with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// Appends one restart record; the number of lines is the run's restart count.
+pub fn log_restart(dir: &Path, line: &str) -> Result<()> {
+    append_line(dir, RESTARTS_FILE, line)
 }
 
 /// Records that a supervisor resumed the run at `next_seq`.
 pub fn log_resume(dir: &Path, next_seq: u64) -> Result<()> {
-    use std::io::Write;
-    let mut f = std::fs::OpenOptions::new()
-        .create(true)
-        .append(true)
-        .open(dir.join(RESUMES_FILE))?;
-    writeln!(f, "next_seq {next_seq}")?;
-    Ok(())
+    append_line(dir, RESUMES_FILE, &format!("next_seq {next_seq}"))
 }
 
 /// The frames at which the SLAM service started again with an empty map:

@@ -267,3 +267,107 @@ fn kill_any_service_at_any_moment_and_the_run_completes() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A lockstep run whose mask worker is killed and given up on
+/// (`restart_limit = 0`) while a frame routed to it is in flight: that
+/// frame goes on unmasked instead of the run waiting for it forever.
+fn given_up_worker_with_a_frame_in_flight(worker: &str, routing: &str) {
+    let dir = scratch(&format!("orphan-{worker}"));
+    let run_id = format!("orphan{worker}{}", std::process::id());
+    let run_dir = dir.join("runs").join(&run_id);
+    let config = write_config(
+        &dir,
+        &format!(
+            "[services.slam]\nbackend = \"scripted\"\nkeyframe_every = 1000\n\
+             [services.segmenter]\nbackend = \"none\"\nwork_ms = 40\n\
+             [services.propagator]\nbackend = \"none\"\nwork_ms = 40\n\
+             [supervisor]\nrestart_limit = 0\n{routing}"
+        ),
+    );
+    let tum = shared_tum();
+    let log = dir.join("supervisor.log");
+    let mut sup = start_supervisor(
+        &[
+            "run",
+            tum.to_str().unwrap(),
+            "--config",
+            config.to_str().unwrap(),
+            "--output-dir",
+            dir.join("runs").to_str().unwrap(),
+            "--run-id",
+            &run_id,
+            "--limit",
+            "60",
+        ],
+        &log,
+    );
+    // Kill the worker once 20 frames are done (each then spends 40 ms in it,
+    // so a frame is in flight).
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let pid = loop {
+        assert!(Instant::now() < deadline, "the run did not reach frame 20");
+        if let Some(s) = status(&run_dir) {
+            let done = s["frames_done"].as_u64().unwrap_or(0);
+            let pid = child_entry(&s, worker).and_then(|c| c["pid"].as_u64());
+            if let (true, Some(pid)) = (done >= 20, pid) {
+                break pid as u32;
+            }
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    };
+    kill9(pid);
+    let code = loop {
+        if let Some(status) = sup.try_wait().unwrap() {
+            break status.code();
+        }
+        if Instant::now() > deadline {
+            let _ = sup.kill();
+            let _ = sup.wait();
+            for pid in processes_mentioning(&run_id) {
+                kill9(pid);
+            }
+            panic!(
+                "the run hangs after the {worker} was given up on:\n{}",
+                std::fs::read_to_string(&log).unwrap_or_default()
+            );
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let text = std::fs::read_to_string(&log).unwrap();
+    assert_eq!(code, Some(3), "a degraded run:\n{text}");
+    let rows = read_rows(&run_dir);
+    assert_eq!(rows.len(), 60, "every frame recorded");
+    let seqs: std::collections::BTreeSet<u64> =
+        rows.iter().map(|r| r["seq"].parse().unwrap()).collect();
+    assert_eq!(seqs.len(), 60, "each once");
+    assert!(rows.iter().all(|r| r["state"] == "ok"));
+    let orphaned = rows
+        .iter()
+        .filter(|r| r["note"].contains(&format!("the {worker} was given up on while")))
+        .count();
+    eprintln!("{worker}: {orphaned} frame(s) re-routed in flight");
+    assert!(orphaned <= 1, "at most the one in-flight frame");
+    // The frames after it are routed around the given-up worker.
+    let its_route = if worker == "segmenter" {
+        "segment"
+    } else {
+        "propagate"
+    };
+    let late: Vec<_> = rows
+        .iter()
+        .filter(|r| r["seq"].parse::<u64>().unwrap() >= 40)
+        .collect();
+    assert!(late.iter().all(|r| r["route"] != its_route), "{late:?}");
+    assert_no_shm_left(&run_id);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn a_segmenter_given_up_on_with_a_frame_in_flight_does_not_hang_the_run() {
+    given_up_worker_with_a_frame_in_flight("segmenter", "[routing]\nsegment_every_frame = true\n");
+}
+
+#[test]
+fn a_propagator_given_up_on_with_a_frame_in_flight_does_not_hang_the_run() {
+    given_up_worker_with_a_frame_in_flight("propagator", "");
+}

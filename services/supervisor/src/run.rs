@@ -400,6 +400,41 @@ impl Supervisor {
         Ok(())
     }
 
+    /// Frames routed to a mask worker that has been given up on never get
+    /// their masks: they go on unmasked, told to SLAM by a second Route
+    /// (which replaces the first), so a lockstep run never waits for them.
+    fn reroute_orphans(&mut self, routes: &pipeline::transport::Sender<Route, ()>) -> Result<()> {
+        let availability = self.availability();
+        let mut orphans: Vec<u64> = self
+            .pending
+            .iter()
+            .filter(|(_, p)| match p.route {
+                Some(RouteKind::Segment) => !availability.segmenter,
+                Some(RouteKind::Propagate) => !availability.propagator,
+                _ => false,
+            })
+            .map(|(&seq, _)| seq)
+            .collect();
+        orphans.sort_unstable();
+        for seq in orphans {
+            let p = self.pending.get_mut(&seq).expect("an orphan is pending");
+            let worker = match p.route {
+                Some(RouteKind::Segment) => "segmenter",
+                _ => "propagator",
+            };
+            tracing::warn!(
+                seq,
+                "the {worker} was given up on with this frame routed to it; it goes on unmasked"
+            );
+            p.route = Some(RouteKind::Skip);
+            p.note =
+                format!("unmasked: the {worker} was given up on while this frame was routed to it");
+            let stamps = p.stamps;
+            send_route(routes, seq, RouteKind::Skip, stamps, false)?;
+        }
+        Ok(())
+    }
+
     /// Reaps dead children and decides on restarts.
     fn watch_children(&mut self, stopping: bool) -> Result<bool> {
         let mut someone_died = false;
@@ -776,7 +811,9 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
             sup.on_frame(&header, &routes)?;
         }
         sup.route_ready(&routes)?;
-        sup.watch_children(false)?;
+        if sup.watch_children(false)? {
+            sup.reroute_orphans(&routes)?;
+        }
         for kind in [ServiceKind::CameraReader, ServiceKind::Slam] {
             if let SvcState::Failed { reason } = &sup.svc(kind).state {
                 sup.fatal = Some(reason.clone());

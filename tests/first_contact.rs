@@ -254,3 +254,40 @@ fn every_command_of_the_readme_exists_as_written() {
         }
     }
 }
+
+#[test]
+fn invalid_values_stop_the_run_before_any_process_starts() {
+    let dir = scratch("invalid-values");
+    let tum = small_tum(&dir, 2);
+    for (i, (text, needles)) in [
+        (
+            "[services.segmenter]\nclasses = [\"person\", \"pedestrian\"]\n",
+            vec!["services.segmenter.classes", "'pedestrian'"],
+        ),
+        (
+            "[run]\nspeed = 1e-300\n",
+            vec!["run.speed", "1e-300", "line 2"],
+        ),
+        (
+            "[services.segmenter]\nscore_threshold = 2.0\n",
+            vec!["services.segmenter.score_threshold", "0..=1"],
+        ),
+        (
+            "[supervisor]\nready_timeout_s = 0\n",
+            vec!["supervisor.ready_timeout_s"],
+        ),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let config = write_config(&dir, text);
+        let id = format!("invalid{i}");
+        let r = run(&tum, &config, &dir.join("runs"), &id, &[]);
+        assert_eq!(r.output.status.code(), Some(1), "{text}: {}", r.stderr());
+        for n in needles {
+            assert!(r.stderr().contains(n), "{text}: no '{n}' in {}", r.stderr());
+        }
+        assert!(!r.run_dir.exists(), "{text}: no run folder");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -48,6 +48,8 @@ pub fn parse_timed_list(
 ) -> Result<TimedList, SourceError> {
     let mut entries: Vec<(f64, PathBuf)> = Vec::new();
     let mut previous_line = 0;
+    // A UTF-8 byte-order mark (Windows editors) is not part of the first line.
+    let text = text.trim_start_matches('\u{feff}');
     for (i, raw) in text.lines().enumerate() {
         let line_no = i + 1;
         let line = raw.trim();
@@ -76,6 +78,18 @@ pub fn parse_timed_list(
                     "timestamp {ts} is not after line {previous_line} ({prev}); the list must be sorted by time"
                 )));
             }
+        }
+        // Frames come from inside the dataset folder only: a list is input,
+        // and `/etc/passwd` or `../../x` is not a frame of this dataset.
+        let rel = Path::new(file);
+        if rel.is_absolute()
+            || rel
+                .components()
+                .any(|c| matches!(c, std::path::Component::ParentDir))
+        {
+            return Err(bad(format!(
+                "'{file}' is outside the dataset folder (an absolute path or '..'); list files inside it (a symbolic link inside the folder may point elsewhere)"
+            )));
         }
         previous_line = line_no;
         entries.push((timestamp, base.join(file)));
@@ -248,6 +262,23 @@ mod tests {
 
     fn list(text: &str) -> Result<TimedList, SourceError> {
         parse_timed_list(text, Path::new("/d/rgb.txt"), Path::new("/d"))
+    }
+
+    #[test]
+    fn paths_outside_the_dataset_folder_are_refused_and_a_bom_is_not_a_character() {
+        for file in ["/etc/passwd", "../other/rgb/1.png", "rgb/../../x.png"] {
+            let err = list(&format!("1.0 rgb/a.png\n2.0 {file}\n"))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                err.contains("outside the dataset folder") && err.contains("line 2"),
+                "{err}"
+            );
+        }
+        let ok = list("\u{feff}# color images\n1.0 rgb/a.png\n").unwrap();
+        assert_eq!(ok.entries, vec![(1.0, PathBuf::from("/d/rgb/a.png"))]);
+        let ok = list("\u{feff}1.0 rgb/a.png\n").unwrap();
+        assert_eq!(ok.entries.len(), 1);
     }
 
     #[test]

@@ -64,6 +64,36 @@ pub fn check_signature(
     .into())
 }
 
+/// Checks that a model's square image input `name` ([N, C, S, S]) takes the
+/// configured size `size` where the model fixes it; `key` names the setting.
+pub fn check_input_size(
+    session: &Session,
+    model: &Path,
+    name: &str,
+    size: usize,
+    key: &str,
+) -> Result<()> {
+    let dims = session
+        .inputs()
+        .iter()
+        .find(|o| o.name() == name)
+        .and_then(|o| o.dtype().tensor_shape())
+        .map(|s| s.iter().copied().collect::<Vec<i64>>());
+    if let Some(d) = dims {
+        if d.len() == 4 && d[2] > 0 && d[3] > 0 && (d[2] as usize != size || d[3] as usize != size)
+        {
+            return Err(InputError(format!(
+                "key `{key}`: {size}, but {} takes {}x{} images (`{name}` {d:?})",
+                model.display(),
+                d[3],
+                d[2]
+            ))
+            .into());
+        }
+    }
+    Ok(())
+}
+
 /// The process's ONNX Runtime environment: ONNX Runtime allows one per
 /// process, so it is created on first use and shared.
 static RUNTIME: std::sync::Mutex<Option<ort::environment::Environment>> =

@@ -56,7 +56,8 @@ impl CameraConfig {
         for (key, f) in [("fx", self.fx), ("fy", self.fy)] {
             if !(f.is_finite() && f > 0.0 && f < 1e5) {
                 return Err(format!(
-                    "key `{key}`: {f} is not a focal length in pixels (0 < f < 100000)"
+                    "key `{key}`: {} is not a focal length in pixels (0 < f < 100000)",
+                    readable(f)
                 ));
             }
         }
@@ -433,29 +434,103 @@ impl PipelineConfig {
         let config: PipelineConfig = toml::Value::Table(layered)
             .try_into()
             .map_err(|e: toml::de::Error| e.message().to_string())?;
-        config.validate()?;
+        config.validate().map_err(|e| {
+            // Name the line where the text sets the offending key.
+            let key = e
+                .strip_prefix("key `")
+                .and_then(|rest| rest.split('`').next())
+                .unwrap_or_default();
+            match line_of_key(text, key) {
+                Some(line) => format!("{e} (line {line})"),
+                None => e,
+            }
+        })?;
         Ok(config)
     }
 
     fn validate(&self) -> Result<(), String> {
         let r = &self.run;
-        if r.max_width == 0 || r.max_height == 0 || r.max_width > 8192 || r.max_height > 8192 {
-            return Err(format!(
-                "key `run.max_width`/`run.max_height`: {}x{} is not a usable frame size (1..=8192)",
-                r.max_width, r.max_height
-            ));
+        // 4096x4096 RGB-D frames are 80 MB per shared-memory slot already.
+        for (key, v) in [
+            ("run.max_width", r.max_width),
+            ("run.max_height", r.max_height),
+        ] {
+            if !(16..=4096).contains(&v) {
+                return Err(format!(
+                    "key `{key}`: {v} is not a usable frame size in pixels (16..=4096)"
+                ));
+            }
         }
-        if !(r.speed.is_finite() && r.speed > 0.0) {
-            return Err(format!(
-                "key `run.speed`: {} must be a positive number",
-                r.speed
-            ));
+        in_range("run.speed", r.speed, 0.01, 100.0, "a playback speed factor")?;
+        in_range(
+            "source.max_time_diff",
+            self.source.max_time_diff,
+            1e-4,
+            1.0,
+            "an association tolerance in seconds",
+        )?;
+        in_range(
+            "source.depth_scale",
+            self.source.depth_scale as f64,
+            1.0,
+            1e5,
+            "depth units per metre (TUM 5000, millimetres 1000)",
+        )?;
+        let sup = &self.supervisor;
+        for (key, v, lo, hi) in [
+            ("supervisor.ready_timeout_s", sup.ready_timeout_s, 1, 3600),
+            (
+                "supervisor.stop_timeout_ms",
+                sup.stop_timeout_ms,
+                1,
+                600_000,
+            ),
+            (
+                "supervisor.restart_backoff_reset_s",
+                sup.restart_backoff_reset_s,
+                1,
+                86_400,
+            ),
+        ] {
+            if !(lo..=hi).contains(&v) {
+                return Err(format!("key `{key}`: {v} is outside {lo}..={hi}"));
+            }
         }
-        if !(self.source.max_time_diff.is_finite() && self.source.max_time_diff > 0.0) {
-            return Err("key `source.max_time_diff`: must be a positive number of seconds".into());
-        }
-        if !(self.source.depth_scale.is_finite() && self.source.depth_scale > 0.0) {
-            return Err("key `source.depth_scale`: must be a positive number".into());
+        for (name, svc) in [
+            ("segmenter", &self.services.segmenter),
+            ("propagator", &self.services.propagator),
+            ("slam", &self.services.slam),
+        ] {
+            for (key, v) in [
+                ("score_threshold", svc.score_threshold),
+                ("iou_threshold", svc.iou_threshold),
+                ("min_predicted_iou", svc.min_predicted_iou),
+                ("min_area_ratio", svc.min_area_ratio),
+            ] {
+                if let Some(v) = v {
+                    in_range(
+                        &format!("services.{name}.{key}"),
+                        v as f64,
+                        0.0,
+                        1.0,
+                        "a fraction",
+                    )?;
+                }
+            }
+            if let Some(n) = svc.input_size {
+                if !(32..=4096).contains(&n) || n % 32 != 0 {
+                    return Err(format!(
+                        "key `services.{name}.input_size`: {n} is not a network input size (a multiple of 32 in 32..=4096)"
+                    ));
+                }
+            }
+            if let Some(t) = svc.threads {
+                if !(1..=256).contains(&t) {
+                    return Err(format!(
+                        "key `services.{name}.threads`: {t} is outside 1..=256"
+                    ));
+                }
+            }
         }
         if !(self.source.image_period.is_finite() && self.source.image_period > 0.0) {
             return Err("key `source.image_period`: must be a positive number of seconds".into());
@@ -471,7 +546,7 @@ impl PipelineConfig {
         }
         self.camera
             .validate()
-            .map_err(|e| format!("{e} (in [camera])"))?;
+            .map_err(|e| e.replacen("key `", "key `camera.", 1))?;
         if self.onnxruntime.providers.is_empty() {
             return Err(
                 "key `onnxruntime.providers`: empty; list at least one of cpu, cuda, tensorrt"
@@ -524,6 +599,47 @@ impl PipelineConfig {
     pub fn to_toml(&self) -> Result<String, toml::ser::Error> {
         toml::to_string_pretty(self)
     }
+}
+
+/// `value` within `lo..=hi`, else an error naming the key, the value, the range and what it is.
+fn in_range(key: &str, value: f64, lo: f64, hi: f64, what: &str) -> Result<(), String> {
+    if value.is_finite() && (lo..=hi).contains(&value) {
+        return Ok(());
+    }
+    Err(format!(
+        "key `{key}`: {} is not {what} ({lo}..={hi})",
+        readable(value)
+    ))
+}
+
+/// A number as a person reads it (1e300, not three hundred digits).
+pub fn readable(v: f64) -> String {
+    if v != 0.0 && v.is_finite() && !(1e-4..1e6).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
+/// The line of `key` (a dotted path) in `text`, where the text sets it.
+fn line_of_key(text: &str, key: &str) -> Option<usize> {
+    let (section, name) = key.rsplit_once('.')?;
+    let mut current = String::new();
+    for (i, line) in text.lines().enumerate() {
+        let l = line.trim();
+        if let Some(rest) = l.strip_prefix('[') {
+            current = rest.trim_end_matches(']').trim().to_string();
+            continue;
+        }
+        if current == section {
+            if let Some((k, _)) = l.split_once('=') {
+                if k.trim() == name {
+                    return Some(i + 1);
+                }
+            }
+        }
+    }
+    None
 }
 
 /// Deserialises `text` alone, naming the key path and line of an error.
@@ -739,10 +855,47 @@ mod tests {
         assert!(err.contains("run.speed"), "{err}");
         let err = PipelineConfig::parse("[camera]\nreadout_s = 0.5\n").unwrap_err();
         assert!(
-            err.contains("readout_s") && err.contains("[camera]"),
+            err.contains("camera.readout_s") && err.contains("line 2"),
             "{err}"
         );
         assert!(PipelineConfig::parse("[run\n").is_err());
+    }
+
+    #[test]
+    fn implausible_values_are_errors_naming_key_value_range_and_line() {
+        for (text, key) in [
+            ("[run]\nspeed = 1e-300\n", "run.speed"),
+            ("[run]\nmax_width = 8192\n", "run.max_width"),
+            ("[source]\ndepth_scale = 1e-30\n", "source.depth_scale"),
+            (
+                "[supervisor]\nready_timeout_s = 0\n",
+                "supervisor.ready_timeout_s",
+            ),
+            (
+                "[services.segmenter]\nscore_threshold = 2.0\n",
+                "services.segmenter.score_threshold",
+            ),
+            (
+                "[services.segmenter]\niou_threshold = 5.0\n",
+                "services.segmenter.iou_threshold",
+            ),
+            (
+                "[services.segmenter]\ninput_size = 100\n",
+                "services.segmenter.input_size",
+            ),
+            (
+                "[services.propagator]\nmin_area_ratio = -1.0\n",
+                "services.propagator.min_area_ratio",
+            ),
+            ("[camera]\nfx = 1e300\n", "camera.fx"),
+        ] {
+            let err = PipelineConfig::parse(&format!("# a comment\n{text}")).unwrap_err();
+            assert!(err.contains(&format!("key `{key}`")), "{text}: {err}");
+            assert!(err.contains("line 3"), "{text}: {err}");
+        }
+        // The value and the range are named.
+        let err = PipelineConfig::parse("[run]\nspeed = 500.0\n").unwrap_err();
+        assert!(err.contains("500") && err.contains("0.01..=100"), "{err}");
     }
 
     #[test]

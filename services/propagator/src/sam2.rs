@@ -26,7 +26,7 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
-use onnx_runtime::{check_signature, open_session, verified_model};
+use onnx_runtime::{check_input_size, check_signature, open_session, verified_model};
 use ort::session::Session;
 use ort::value::TensorRef;
 use pipeline::config::ServiceConfig;
@@ -367,6 +367,13 @@ impl Sam2Propagator {
             "SAM 2 image encoder",
             ENCODER_INPUTS,
             ENCODER_OUTPUTS,
+        )?;
+        check_input_size(
+            &encoder,
+            &settings.encoder,
+            "image",
+            settings.input_size,
+            "services.propagator.input_size",
         )?;
         let decoder = open_session(&env, &settings.decoder, settings.threads)?;
         check_signature(

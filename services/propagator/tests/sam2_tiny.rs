@@ -143,6 +143,17 @@ fn wrong_files_and_missing_keys_are_named() {
     let msg = format!("{err:#}");
     assert!(msg.contains("not a SAM 2 prompt/mask decoder"), "{msg}");
     assert!(msg.contains("point_coords"), "{msg}");
+    // An input size the encoder does not take.
+    let mut cfg = config("tiny_sam2_encoder.onnx", "tiny_sam2_decoder.onnx");
+    cfg.input_size = Some(512);
+    let err = Sam2Propagator::load(env(), Sam2Settings::from_config(&cfg).unwrap())
+        .err()
+        .unwrap();
+    let msg = format!("{err:#}");
+    assert!(
+        msg.contains("services.propagator.input_size") && msg.contains("1024x1024"),
+        "{msg}"
+    );
     // No decoder configured.
     let mut cfg = config("tiny_sam2_encoder.onnx", "tiny_sam2_decoder.onnx");
     cfg.decoder_model = String::new();

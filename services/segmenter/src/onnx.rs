@@ -107,6 +107,13 @@ impl YoloSeg {
             &["images"],
             &["output0", "output1"],
         )?;
+        onnx_runtime::check_input_size(
+            &session,
+            &settings.model,
+            "images",
+            settings.input_size,
+            "services.segmenter.input_size",
+        )?;
         let n = settings.input_size;
         let mut me = Self {
             _env: env,

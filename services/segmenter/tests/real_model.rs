@@ -167,3 +167,27 @@ fn bad_model_files_and_runtime_give_named_errors() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn an_input_size_the_model_does_not_take_is_a_configuration_error() {
+    // The shipped export is fixed at 320: 640 would crash every inference.
+    let cfg = ServiceConfig {
+        model_path: Some(repo().join("../shared/models/yolov8n-seg_f32.onnx")),
+        input_size: Some(640),
+        ..Default::default()
+    };
+    let settings = YoloSettings::from_config(&cfg).unwrap();
+    let err = YoloSeg::load(init_runtime(&runtime()).unwrap(), settings)
+        .err()
+        .unwrap();
+    let msg = format!("{err:#}");
+    assert!(
+        msg.contains("services.segmenter.input_size") && msg.contains("320x320"),
+        "{msg}"
+    );
+    assert!(
+        err.downcast_ref::<pipeline::runtime::InputError>()
+            .is_some(),
+        "an input error (not retried): {msg}"
+    );
+}

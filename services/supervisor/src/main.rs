@@ -271,6 +271,14 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             if let Some(l) = limit {
                 cfg.source.limit = l;
             }
+            if matches!(
+                cfg.services.segmenter.backend.as_str(),
+                "yolov8-seg" | "maskrcnn"
+            ) {
+                // Caught here, before any process starts, not as a degraded run.
+                segmenter::coco::dynamic_classes(&cfg.services.segmenter.classes, "segmenter")
+                    .map_err(anyhow::Error::msg)?;
+            }
             let choice =
                 pipeline::cameras::choose(camera.as_deref(), &cfg.source.path, &cfg.camera)
                     .map_err(anyhow::Error::msg)?;

@@ -371,3 +371,81 @@ fn a_segmenter_given_up_on_with_a_frame_in_flight_does_not_hang_the_run() {
 fn a_propagator_given_up_on_with_a_frame_in_flight_does_not_hang_the_run() {
     given_up_worker_with_a_frame_in_flight("propagator", "");
 }
+
+#[test]
+fn a_live_run_cannot_be_resumed_or_its_run_id_reused() {
+    let dir = scratch("live-lock");
+    let run_id = format!("live{}", std::process::id());
+    let run_dir = dir.join("runs").join(&run_id);
+    let config = write_config(
+        &dir,
+        &format!("[services.slam]\nbackend = \"scripted\"\nwork_ms = 30\n{NO_MASK_MODELS}"),
+    );
+    let tum = shared_tum();
+    let log = dir.join("supervisor.log");
+    let mut sup = start_supervisor(
+        &[
+            "run",
+            tum.to_str().unwrap(),
+            "--config",
+            config.to_str().unwrap(),
+            "--output-dir",
+            dir.join("runs").to_str().unwrap(),
+            "--run-id",
+            &run_id,
+            "--limit",
+            "80",
+        ],
+        &log,
+    );
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while status(&run_dir)
+        .and_then(|s| s["frames_done"].as_u64())
+        .unwrap_or(0)
+        < 5
+    {
+        assert!(Instant::now() < deadline, "the run did not start");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    // Resume of the live run: refused, and it touches nothing of it.
+    let resume = Command::new(dynslam())
+        .args(["resume", run_dir.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&resume.stderr);
+    assert_eq!(resume.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("in use by a live supervisor"), "{stderr}");
+    // The same run id from another output folder: refused before a folder is made.
+    let other = dir.join("other");
+    let again = Command::new(dynslam())
+        .args([
+            "run",
+            tum.to_str().unwrap(),
+            "--config",
+            config.to_str().unwrap(),
+        ])
+        .args(["--output-dir", other.to_str().unwrap(), "--run-id", &run_id])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&again.stderr);
+    assert_eq!(again.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("in use by a live supervisor"), "{stderr}");
+    assert!(!other.join(&run_id).exists());
+    // The live run completes untouched.
+    let status_code = loop {
+        if let Some(s) = sup.try_wait().unwrap() {
+            break s.code();
+        }
+        assert!(Instant::now() < deadline, "the run did not finish");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert_eq!(
+        status_code,
+        Some(0),
+        "{}",
+        std::fs::read_to_string(&log).unwrap_or_default()
+    );
+    assert_eq!(read_rows(&run_dir).len(), 80);
+    assert_no_shm_left(&run_id);
+    std::fs::remove_dir_all(&dir).ok();
+}

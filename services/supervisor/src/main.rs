@@ -310,6 +310,8 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                     ""
                 }
             );
+            // Refused before anything is written when a live run holds the id.
+            drop(run_dir::RunLock::acquire(&id)?);
             let dir = run_dir::create(
                 &out,
                 &id,

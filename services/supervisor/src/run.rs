@@ -641,6 +641,8 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
     let (info, config) = run_dir::open(run_dir)?;
     let names = RunNames::new(&info.run_id).map_err(|e| anyhow!(e))?;
     let run_dir = run_dir.to_path_buf();
+    // Held until this function returns (or the process dies).
+    let _lock = run_dir::RunLock::acquire(names.run_id())?;
     clean_previous(&run_dir, &names)?;
     let (log, old_rows) = FrameLog::open(&run_dir)?;
     let mut router = Router::new(config.routing.clone());

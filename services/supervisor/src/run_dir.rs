@@ -50,6 +50,44 @@ pub struct ChildStatus {
     pub restarts: u64,
 }
 
+/// Exclusive hold on a run id for the life of its supervisor: an advisory
+/// `flock` on `<tmp>/dynslam-run-<id>.lock`, which the kernel releases when
+/// the holder dies (even by SIGKILL). A second supervisor of the same run id
+/// (a `resume` of a live run, or a new run reusing the id from another
+/// output folder, which would share its shared memory) is refused.
+pub struct RunLock {
+    _file: std::fs::File,
+}
+
+impl RunLock {
+    pub fn acquire(run_id: &str) -> Result<Self> {
+        use std::io::{Read, Seek, Write};
+        use std::os::fd::AsRawFd;
+        let path = std::env::temp_dir().join(format!("dynslam-run-{run_id}.lock"));
+        let mut file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)
+            .with_context(|| format!("cannot open the run lock {}", path.display()))?;
+        // SAFETY: flock(2) on a file descriptor this function owns.
+        if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } != 0 {
+            let mut holder = String::new();
+            let _ = file.read_to_string(&mut holder);
+            bail!(
+                "run id {run_id} is in use by a live supervisor (pid {}; lock {}): stop it first, or pick another --run-id",
+                holder.trim(),
+                path.display()
+            );
+        }
+        file.set_len(0)?;
+        file.rewind()?;
+        write!(file, "{}", std::process::id())?;
+        Ok(Self { _file: file })
+    }
+}
+
 /// A fresh run id: 8 hex digits from the clock and the pid.
 pub fn new_run_id() -> String {
     let nanos = std::time::SystemTime::now()
@@ -178,6 +216,18 @@ pub fn restart_count(dir: &Path) -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_run_id_is_held_by_one_supervisor_at_a_time() {
+        let id = format!("locktest{}", std::process::id());
+        let lock = RunLock::acquire(&id).unwrap();
+        // flock is per open file: a second open in the same process conflicts too.
+        let err = RunLock::acquire(&id).err().unwrap().to_string();
+        assert!(err.contains("in use by a live supervisor"), "{err}");
+        assert!(err.contains(&std::process::id().to_string()), "{err}");
+        drop(lock);
+        RunLock::acquire(&id).unwrap();
+    }
 
     #[test]
     fn run_ids_are_valid_names() {

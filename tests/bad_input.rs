@@ -71,6 +71,19 @@ fn truncated_png_is_skipped_and_named() {
 }
 
 #[test]
+fn a_directory_in_place_of_a_frame_is_skipped_and_named() {
+    run_with_damaged_frame(
+        "dirframe",
+        |tum| {
+            let f = rgb_file(tum, 5);
+            std::fs::remove_file(&f).unwrap();
+            std::fs::create_dir(&f).unwrap();
+        },
+        &["is a directory, not an image file", "rgb/"],
+    );
+}
+
+#[test]
 fn missing_depth_file_is_skipped_and_named() {
     run_with_damaged_frame(
         "nodepth",

@@ -37,6 +37,13 @@ pub enum DecodeError {
 }
 
 fn open(path: &Path) -> Result<PngDecoder<BufReader<File>>, DecodeError> {
+    // A folder opens on Linux and then reads as garbage: name it for what it is.
+    if path.is_dir() {
+        return Err(DecodeError::Open {
+            path: path.to_path_buf(),
+            message: "is a directory, not an image file".into(),
+        });
+    }
     let file = File::open(path).map_err(|e| DecodeError::Open {
         path: path.to_path_buf(),
         message: e.to_string(),

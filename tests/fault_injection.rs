@@ -268,6 +268,29 @@ fn kill_any_service_at_any_moment_and_the_run_completes() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// `dynslam run` of the first `limit` shared frames in the background, into
+/// `dir/runs/<run_id>`, logging to `dir/supervisor.log`.
+fn start_run(dir: &Path, config: &Path, run_id: &str, limit: u32) -> (Child, std::path::PathBuf) {
+    let log = dir.join("supervisor.log");
+    let limit = limit.to_string();
+    let sup = start_supervisor(
+        &[
+            "run",
+            shared_tum().to_str().unwrap(),
+            "--config",
+            config.to_str().unwrap(),
+            "--output-dir",
+            dir.join("runs").to_str().unwrap(),
+            "--run-id",
+            run_id,
+            "--limit",
+            &limit,
+        ],
+        &log,
+    );
+    (sup, log)
+}
+
 /// A lockstep run whose mask worker is killed and given up on
 /// (`restart_limit = 0`) while a frame routed to it is in flight: that
 /// frame goes on unmasked instead of the run waiting for it forever.
@@ -284,23 +307,7 @@ fn given_up_worker_with_a_frame_in_flight(worker: &str, routing: &str) {
              [supervisor]\nrestart_limit = 0\n{routing}"
         ),
     );
-    let tum = shared_tum();
-    let log = dir.join("supervisor.log");
-    let mut sup = start_supervisor(
-        &[
-            "run",
-            tum.to_str().unwrap(),
-            "--config",
-            config.to_str().unwrap(),
-            "--output-dir",
-            dir.join("runs").to_str().unwrap(),
-            "--run-id",
-            &run_id,
-            "--limit",
-            "60",
-        ],
-        &log,
-    );
+    let (mut sup, log) = start_run(&dir, &config, &run_id, 60);
     // Kill the worker once 20 frames are done (each then spends 40 ms in it,
     // so a frame is in flight).
     let deadline = Instant::now() + Duration::from_secs(60);
@@ -382,22 +389,7 @@ fn a_live_run_cannot_be_resumed_or_its_run_id_reused() {
         &format!("[services.slam]\nbackend = \"scripted\"\nwork_ms = 30\n{NO_MASK_MODELS}"),
     );
     let tum = shared_tum();
-    let log = dir.join("supervisor.log");
-    let mut sup = start_supervisor(
-        &[
-            "run",
-            tum.to_str().unwrap(),
-            "--config",
-            config.to_str().unwrap(),
-            "--output-dir",
-            dir.join("runs").to_str().unwrap(),
-            "--run-id",
-            &run_id,
-            "--limit",
-            "80",
-        ],
-        &log,
-    );
+    let (mut sup, log) = start_run(&dir, &config, &run_id, 80);
     let deadline = Instant::now() + Duration::from_secs(60);
     while status(&run_dir)
         .and_then(|s| s["frames_done"].as_u64())

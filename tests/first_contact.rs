@@ -9,10 +9,6 @@ use common::*;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-fn status(run_dir: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(run_dir.join("status.json")).unwrap()).unwrap()
-}
-
 fn report(run_dir: &Path) -> String {
     std::fs::read_to_string(run_dir.join("report.md")).unwrap()
 }
@@ -51,7 +47,7 @@ fn a_config_with_only_a_camera_runs_the_product() {
         md.contains("backends: SLAM `orb-rgbd`, segmenter `yolov8-seg`, propagator `lk`"),
         "{md}"
     );
-    assert_eq!(status(&r.run_dir)["state"], "completed");
+    assert_eq!(read_status(&r.run_dir)["state"], "completed");
     std::fs::remove_dir_all(&dir).ok();
 }
 
@@ -77,7 +73,7 @@ fn a_missing_model_degrades_the_run_loudly_and_require_masks_fails_it() {
         "degraded exit code:\n{stderr}"
     );
     assert!(stderr.contains("DEGRADED"), "{stderr}");
-    let s = status(&r.run_dir);
+    let s = read_status(&r.run_dir);
     assert_eq!(s["state"], "degraded", "{s}");
     let error = s["error"].as_str().unwrap();
     assert!(error.contains("/no/such/yolov8n-seg_f32.onnx"), "{error}");
@@ -100,7 +96,7 @@ fn a_missing_model_degrades_the_run_loudly_and_require_masks_fails_it() {
     );
     assert_eq!(r.output.status.code(), Some(1), "{}", r.stderr());
     assert!(r.stderr().contains("require_masks"), "{}", r.stderr());
-    assert_eq!(status(&r.run_dir)["state"], "failed");
+    assert_eq!(read_status(&r.run_dir)["state"], "failed");
     assert_no_shm_left(&r.run_id);
     std::fs::remove_dir_all(&dir).ok();
 }

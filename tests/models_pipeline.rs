@@ -114,9 +114,7 @@ fn missing_model_degrades_the_run_and_slam_goes_on_with_frames_unmasked() {
         assert_eq!(r["route"], "skip");
         assert!(r["note"].contains("unmasked"), "{r:?}");
     }
-    let status: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(run.run_dir.join("status.json")).unwrap())
-            .unwrap();
+    let status = read_status(&run.run_dir);
     assert_eq!(status["restarts"], 0);
     assert_eq!(status["state"], "degraded");
     assert!(

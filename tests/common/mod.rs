@@ -77,6 +77,12 @@ pub fn write_config(dir: &Path, extra: &str) -> PathBuf {
     path
 }
 
+/// A run folder's `status.json`.
+pub fn read_status(run_dir: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(run_dir.join("status.json")).unwrap();
+    serde_json::from_str(&text).unwrap()
+}
+
 /// Result of one `dynslam run`.
 pub struct RunResult {
     pub output: Output,

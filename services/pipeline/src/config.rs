@@ -613,7 +613,7 @@ fn in_range(key: &str, value: f64, lo: f64, hi: f64, what: &str) -> Result<(), S
 }
 
 /// A number as a person reads it (1e300, not three hundred digits).
-pub fn readable(v: f64) -> String {
+fn readable(v: f64) -> String {
     if v != 0.0 && v.is_finite() && !(1e-4..1e6).contains(&v.abs()) {
         format!("{v:e}")
     } else {

@@ -242,25 +242,27 @@ pub fn interior_points(mask: &[bool], w: usize, h: usize, k: usize) -> Vec<(usiz
             d[i] = d[i].min(down + 1).min(right + 1);
         }
     }
-    let mut order: Vec<usize> = (0..d.len()).filter(|&i| d[i] > 0).collect();
-    // Deepest first; ties in raster order (deterministic).
-    order.sort_by(|&a, &b| d[b].cmp(&d[a]).then(a.cmp(&b)));
-    let Some(&first) = order.first() else {
-        return Vec::new();
-    };
-    let spacing = (d[first] / 3).max(1) as i64;
+    // Each pick: the deepest pixel far enough from those picked, ties in
+    // raster order (k scans instead of sorting every pixel of the object).
     let mut picked: Vec<(usize, usize)> = Vec::new();
-    for i in order {
-        let (x, y) = (i % w, i / w);
-        let far = picked.iter().all(|&(px, py)| {
-            (px as i64 - x as i64).abs() + (py as i64 - y as i64).abs() >= spacing
-        });
-        if far {
-            picked.push((x, y));
-            if picked.len() == k {
-                break;
-            }
+    let mut spacing = 1i64;
+    while picked.len() < k {
+        let far = |i: usize| {
+            let (x, y) = ((i % w) as i64, (i / w) as i64);
+            picked
+                .iter()
+                .all(|&(px, py)| (px as i64 - x).abs() + (py as i64 - y).abs() >= spacing)
+        };
+        let Some(best) = (0..d.len())
+            .filter(|&i| d[i] > 0 && far(i))
+            .max_by(|&a, &b| d[a].cmp(&d[b]).then(b.cmp(&a)))
+        else {
+            break;
+        };
+        if picked.is_empty() {
+            spacing = (d[best] / 3).max(1) as i64;
         }
+        picked.push((best % w, best / w));
     }
     picked
 }

@@ -6,11 +6,12 @@
 use std::process::ExitCode;
 
 use clap::Parser;
+use onnx_runtime::init_runtime;
 use pipeline::mask_worker::{self, model_from_config, ModelFactory};
 use pipeline::runtime::{run_service, InputError, ServiceArgs};
 use segmenter::ground_truth::GroundTruthMasks;
 use segmenter::maskrcnn::MaskRcnn;
-use segmenter::onnx::{init_runtime, YoloSeg, YoloSettings};
+use segmenter::onnx::{YoloSeg, YoloSettings};
 use shared_types::{MaskSource, ServiceKind};
 
 #[derive(Debug, Parser)]

@@ -22,7 +22,7 @@ use pipeline::views::FrameView;
 use shared_types::{Instance, MAX_INSTANCES};
 
 use crate::coco::{self, class_of_category};
-use crate::onnx::{open_session, verified_model};
+use onnx_runtime::{open_session, verified_model};
 
 /// Mask probability at or above which a pixel belongs to the instance
 /// (torchvision's documented threshold for its soft masks).

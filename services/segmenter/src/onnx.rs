@@ -87,7 +87,7 @@ impl YoloSettings {
     }
 }
 
-pub use onnx_runtime::{init_runtime, open_session, verified_model};
+use onnx_runtime::{open_session, verified_model};
 
 /// YOLOv8-seg instance segmentation.
 pub struct YoloSeg {

@@ -5,11 +5,11 @@
 
 use std::path::{Path, PathBuf};
 
+use onnx_runtime::init_runtime;
 use pipeline::config::{OnnxRuntimeConfig, ServiceConfig};
 use pipeline::provision::{sha256_of, ORT_CACHE};
 use segmenter::coco::CLASSES;
 use segmenter::maskrcnn::MaskRcnn;
-use segmenter::onnx::init_runtime;
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")

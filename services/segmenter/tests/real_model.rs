@@ -3,10 +3,11 @@
 
 use std::path::{Path, PathBuf};
 
+use onnx_runtime::init_runtime;
 use pipeline::config::{OnnxRuntimeConfig, ServiceConfig};
 use pipeline::provision::ORT_CACHE;
 use segmenter::coco::CLASSES;
-use segmenter::onnx::{init_runtime, YoloSeg, YoloSettings};
+use segmenter::onnx::{YoloSeg, YoloSettings};
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")

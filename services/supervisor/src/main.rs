@@ -291,9 +291,8 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             } else {
                 tracing::info!("camera {}: {}", choice.name, choice.reason);
             }
+            // Presets and camera files are validated as they are read.
             cfg.camera = choice.camera.clone();
-            PipelineConfig::parse(&cfg.to_toml()?)
-                .map_err(|e| anyhow::anyhow!("the resolved configuration: {e}"))?;
             let id = match run_id {
                 Some(id) => id,
                 None => run_dir::new_run_id(),

@@ -12,11 +12,12 @@ use std::path::Path;
 
 use anyhow::{bail, Context, Result};
 use camera_reader::source::{tum_folder, MaskList};
+use onnx_runtime::init_runtime;
 use pipeline::config::PipelineConfig;
 use pipeline::progress::Progress;
 use propagator::propagate::{LkPropagator, PropagatorParams};
 use scenes::truth::{instance_ious, InstanceIou};
-use segmenter::onnx::{init_runtime, YoloSeg, YoloSettings};
+use segmenter::onnx::{YoloSeg, YoloSettings};
 use serde::Serialize;
 
 #[derive(Debug, Clone, Serialize)]

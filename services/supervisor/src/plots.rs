@@ -9,6 +9,7 @@ use std::sync::Once;
 use anyhow::{anyhow, Context, Result};
 use image::RgbImage;
 use nalgebra::Point3;
+use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::colors::colormaps::ViridisRGB;
@@ -39,20 +40,40 @@ fn plot_err(e: impl std::fmt::Display) -> anyhow::Error {
     anyhow!("plotting: {e}")
 }
 
+type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
+type Chart2d<'a, 'b> =
+    ChartContext<'a, BitMapBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
 /// Draws into a fresh white `width` x `height` image.
-fn draw(
-    width: u32,
-    height: u32,
-    paint: impl FnOnce(&DrawingArea<BitMapBackend<'_>, Shift>) -> Result<()>,
-) -> Result<RgbImage> {
-    register_font();
+fn draw(width: u32, height: u32, paint: impl FnOnce(&Area<'_>) -> Result<()>) -> Result<RgbImage> {
     let mut img = RgbImage::from_pixel(width, height, image::Rgb([255, 255, 255]));
-    {
-        let root = BitMapBackend::with_buffer(img.as_mut(), (width, height)).into_drawing_area();
-        paint(&root)?;
-        root.present().map_err(plot_err)?;
-    }
+    draw_on(&mut img, paint)?;
     Ok(img)
+}
+
+/// Draws over an existing image.
+fn draw_on(img: &mut RgbImage, paint: impl FnOnce(&Area<'_>) -> Result<()>) -> Result<()> {
+    register_font();
+    let size = img.dimensions();
+    let root = BitMapBackend::with_buffer(img.as_mut(), size).into_drawing_area();
+    paint(&root)?;
+    root.present().map_err(plot_err)
+}
+
+/// The series legend inside a chart, in a box at `position`.
+fn draw_legend<'a, 'b: 'a>(
+    chart: &mut Chart2d<'a, 'b>,
+    position: SeriesLabelPosition,
+    font_px: u32,
+) -> Result<()> {
+    chart
+        .configure_series_labels()
+        .position(position)
+        .label_font((FONT, font_px))
+        .background_style(WHITE.mix(0.85))
+        .border_style(GREY)
+        .draw()
+        .map_err(plot_err)
 }
 
 pub fn save(img: &RgbImage, path: &Path) -> Result<()> {
@@ -110,7 +131,6 @@ pub fn trajectory(pairs: &[(Point3<f64>, Point3<f64>)], title: &str) -> Result<(
     let max_err = errors.iter().cloned().fold(0.0, f64::max).max(1e-6);
     let (w, h) = (1100u32, 520u32);
     let img = draw(w, h, |root| {
-        root.fill(&WHITE).map_err(plot_err)?;
         let root = root.titled(title, (FONT, TITLE_PX)).map_err(plot_err)?;
         let (plots, bar) = root.split_horizontally(w - 110);
         let panels = plots.split_evenly((1, 2));
@@ -182,14 +202,7 @@ pub fn trajectory(pairs: &[(Point3<f64>, Point3<f64>)], title: &str) -> Result<(
                 .map_err(plot_err)?
                 .label("start")
                 .legend(|(x, y)| Rectangle::new([(x + 6, y - 4), (x + 14, y + 4)], RED.filled()));
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperLeft)
-                .label_font((FONT, LABEL_PX - 2))
-                .background_style(WHITE.mix(0.85))
-                .border_style(GREY)
-                .draw()
-                .map_err(plot_err)?;
+            draw_legend(&mut chart, SeriesLabelPosition::UpperLeft, LABEL_PX - 2)?;
         }
         colour_bar(&bar, max_err)
     })?;
@@ -197,7 +210,7 @@ pub fn trajectory(pairs: &[(Point3<f64>, Point3<f64>)], title: &str) -> Result<(
 }
 
 /// A vertical viridis bar from 0 to `max` metres.
-fn colour_bar(area: &DrawingArea<BitMapBackend<'_>, Shift>, max: f64) -> Result<()> {
+fn colour_bar(area: &Area<'_>, max: f64) -> Result<()> {
     let mut chart = ChartBuilder::on(area)
         .caption("ATE (m)", (FONT, LABEL_PX))
         .margin_top(50)
@@ -286,7 +299,6 @@ pub fn chart(spec: &Chart<'_>, width: u32, height: u32) -> Result<RgbImage> {
     }
     let y1 = spec.y_max.unwrap_or((y1 * 1.1).max(1e-6));
     draw(width, height, |root| {
-        root.fill(&WHITE).map_err(plot_err)?;
         // The legend beside the plot, where it never hides a point.
         let (plot_area, legend_area) = root.split_horizontally(width - 190);
         let mut entries: Vec<(String, RGBColor, Style)> = spec
@@ -345,10 +357,7 @@ pub fn chart(spec: &Chart<'_>, width: u32, height: u32) -> Result<RgbImage> {
 }
 
 /// A legend drawn in its own area: a marker and a name per entry.
-fn side_legend(
-    area: &DrawingArea<BitMapBackend<'_>, Shift>,
-    entries: &[(String, RGBColor, Style)],
-) -> Result<()> {
+fn side_legend(area: &Area<'_>, entries: &[(String, RGBColor, Style)]) -> Result<()> {
     let text = (FONT, LABEL_PX - 1).into_text_style(area);
     let mut y = 50i32;
     for (name, colour, style) in entries {
@@ -392,7 +401,6 @@ pub fn histograms(panels: &[Histogram<'_>], title: &str) -> Result<RgbImage> {
     let (w, panel_h) = (900u32, 200u32);
     let h = 40 + panel_h * panels.len() as u32;
     draw(w, h, |root| {
-        root.fill(&WHITE).map_err(plot_err)?;
         let root = root.titled(title, (FONT, TITLE_PX)).map_err(plot_err)?;
         let areas = root.split_evenly((panels.len(), 1));
         for (area, p) in areas.iter().zip(panels) {
@@ -447,14 +455,7 @@ pub fn histograms(panels: &[Histogram<'_>], title: &str) -> Result<RgbImage> {
                         PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
                     });
             }
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperRight)
-                .label_font((FONT, LABEL_PX - 3))
-                .background_style(WHITE.mix(0.85))
-                .border_style(GREY)
-                .draw()
-                .map_err(plot_err)?;
+            draw_legend(&mut chart, SeriesLabelPosition::UpperRight, LABEL_PX - 3)?;
         }
         Ok(())
     })
@@ -469,9 +470,13 @@ pub fn titled_picture(
     labels: &[(String, (i32, i32))],
 ) -> Result<RgbImage> {
     let bar = 64u32;
-    let (w, h) = (picture.width(), picture.height() + bar);
-    let mut img = draw(w, h, |root| {
-        root.fill(&WHITE).map_err(plot_err)?;
+    let mut img = RgbImage::from_pixel(
+        picture.width(),
+        picture.height() + bar,
+        image::Rgb([255, 255, 255]),
+    );
+    image::imageops::replace(&mut img, picture, 0, bar as i64);
+    draw_on(&mut img, |root| {
         root.draw_text(title, &(FONT, TITLE_PX).into_text_style(root), (10, 6))
             .map_err(plot_err)?;
         let mut x = 10i32;
@@ -482,12 +487,6 @@ pub fn titled_picture(
                 .map_err(plot_err)?;
             x += 30 + 9 * name.len() as i32;
         }
-        Ok(())
-    })?;
-    image::imageops::replace(&mut img, picture, 0, bar as i64);
-    register_font();
-    {
-        let root = BitMapBackend::with_buffer(img.as_mut(), (w, h)).into_drawing_area();
         let style = (FONT, TITLE_PX).into_font().color(&YELLOW);
         for (text, (x, y)) in labels {
             let (tw, th) = root.estimate_text_size(text, &style).map_err(plot_err)?;
@@ -499,8 +498,8 @@ pub fn titled_picture(
             .map_err(plot_err)?;
             root.draw_text(text, &style, (x, y)).map_err(plot_err)?;
         }
-        root.present().map_err(plot_err)?;
-    }
+        Ok(())
+    })?;
     Ok(img)
 }
 

@@ -241,8 +241,8 @@ pub fn write(
         writeln!(md)?;
     }
     writeln!(md, "Dataset: `{}`  ", dataset.display())?;
-    let camera = crate::run_dir::open(run_dir)
-        .map(|(info, _)| info.camera)
+    let camera = crate::run_dir::read_info(run_dir)
+        .map(|info| info.camera)
         .unwrap_or_default();
     let c = &config.camera;
     writeln!(

@@ -813,19 +813,20 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
             sup.on_frame(&header, &routes)?;
         }
         sup.route_ready(&routes)?;
+        // Services only fail when one dies: what follows from it is decided then.
         if sup.watch_children(false)? {
             sup.reroute_orphans(&routes)?;
+            if sup.config.run.require_masks {
+                if let Some(reason) = sup.degraded().first() {
+                    sup.fatal = Some(format!(
+                        "{reason}; run.require_masks (--require-masks) makes this a failure"
+                    ));
+                }
+            }
         }
         for kind in [ServiceKind::CameraReader, ServiceKind::Slam] {
             if let SvcState::Failed { reason } = &sup.svc(kind).state {
                 sup.fatal = Some(reason.clone());
-            }
-        }
-        if sup.config.run.require_masks && sup.fatal.is_none() {
-            if let Some(reason) = sup.degraded().first() {
-                sup.fatal = Some(format!(
-                    "{reason}; run.require_masks (--require-masks) makes this a failure"
-                ));
             }
         }
         if sup.fatal.is_some() {

@@ -134,6 +134,13 @@ pub fn create(
 
 /// Reads an existing run folder (for resume).
 pub fn open(dir: &Path) -> Result<(RunInfo, PipelineConfig)> {
+    let info = read_info(dir)?;
+    let config = PipelineConfig::load(&dir.join(CONFIG_FILE))?;
+    Ok((info, config))
+}
+
+/// The run's identity (`run.json`).
+pub fn read_info(dir: &Path) -> Result<RunInfo> {
     if !dir.is_dir() {
         bail!("run folder {} does not exist", dir.display());
     }
@@ -144,10 +151,7 @@ pub fn open(dir: &Path) -> Result<(RunInfo, PipelineConfig)> {
             dir.display()
         )
     })?;
-    let info: RunInfo = serde_json::from_str(&text)
-        .with_context(|| format!("{}: malformed", info_path.display()))?;
-    let config = PipelineConfig::load(&dir.join(CONFIG_FILE))?;
-    Ok((info, config))
+    serde_json::from_str(&text).with_context(|| format!("{}: malformed", info_path.display()))
 }
 
 pub fn read_status(dir: &Path) -> Option<Status> {

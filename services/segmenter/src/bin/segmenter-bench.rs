@@ -10,9 +10,10 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use camera_reader::source::tum_folder;
 use clap::Parser;
+use onnx_runtime::init_runtime;
 use pipeline::config::PipelineConfig;
 use pipeline::stats::percentile;
-use segmenter::onnx::{init_runtime, YoloSeg, YoloSettings};
+use segmenter::onnx::{YoloSeg, YoloSettings};
 
 #[derive(Debug, Parser)]
 #[command(about = "YOLOv8-seg segmenter: ms per 640x480 frame")]

@@ -134,7 +134,7 @@ fn default_run_renders_the_scene_runs_every_service_and_writes_the_report() {
     let masks_csv = std::fs::read_to_string(run_dir.join("masks.csv")).unwrap();
     assert_eq!(masks_csv.lines().count(), 151, "header + one row per frame");
     assert!(run_dir.join("masks/000149.png").is_file());
-    let map = slam::ply::read_ply(&run_dir.join("map.ply")).unwrap();
+    let map = slam_core::io::ply::read_ply(&run_dir.join("map.ply")).unwrap();
     assert!(map.len() > 1000, "{} map points", map.len());
     assert!(map
         .iter()

@@ -17,7 +17,6 @@ pub mod fuzz;
 pub mod mask_worker;
 pub mod progress;
 pub mod provision;
-pub mod rng;
 pub mod runtime;
 pub mod stats;
 pub mod transport;

@@ -16,8 +16,8 @@ use std::path::{Path, PathBuf};
 
 use image::{ImageBuffer, Luma, Rgb, RgbImage};
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
-use slam::core::camera::Camera;
-use slam::trajectory::Trajectory;
+use slam_core::io::trajectory::Trajectory;
+use slam_core::Camera;
 
 use crate::composite::Pinhole;
 use crate::synth::{for_each_frame, synthesize, SynthError, SynthSummary};
@@ -449,7 +449,7 @@ mod tests {
     use super::*;
 
     fn camera() -> Camera {
-        Camera::from_config(&pipeline::config::CameraConfig::default(), 5000.0)
+        Camera::tum_fr1()
     }
 
     #[test]

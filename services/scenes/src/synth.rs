@@ -18,7 +18,7 @@ use image::{ImageBuffer, Luma};
 use nalgebra::Isometry3;
 use pipeline::progress::Progress;
 use serde::Serialize;
-use slam::trajectory::Trajectory;
+use slam_core::io::trajectory::Trajectory;
 
 use crate::composite::{place, Canvas, Pinhole, Placement};
 use crate::sprites::{people, Sprite};
@@ -29,7 +29,7 @@ pub enum SynthError {
     #[error("{0}")]
     Source(#[from] camera_reader::source::SourceError),
     #[error("{0}")]
-    Trajectory(#[from] slam::trajectory::TrajectoryError),
+    Trajectory(#[from] slam_core::io::trajectory::TrajectoryError),
     #[error("options: {0}")]
     Options(String),
     #[error(

@@ -10,7 +10,7 @@
 use nalgebra::{Isometry3, Point3, Vector3};
 use serde::Serialize;
 
-use pipeline::rng::SplitMix64;
+use slam_core::rng::SplitMix64;
 
 /// The world frame the walks are laid out in.
 #[derive(Debug, Clone, Copy)]

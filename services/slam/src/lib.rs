@@ -1,11 +1,10 @@
-//! The SLAM library. It is usable without any IPC: feed it frames and masks,
-//! get poses. The SLAM service (`main.rs`) is a thin shell around a
-//! [`tracker::Tracker`].
+//! The SLAM service's library: the seam between the service and a SLAM
+//! implementation ([`tracker::Tracker`]), the `orb-rgbd` backend over the
+//! SLAM core (the `slam-core` crate, which has no IPC in it), the
+//! `scripted` test double, and the conversions between the pipeline's
+//! configuration and wire types and the core's own.
 
-pub mod core;
-pub mod eval;
-pub mod ply;
+pub mod convert;
 pub mod rgbd_tracker;
 pub mod scripted;
 pub mod tracker;
-pub mod trajectory;

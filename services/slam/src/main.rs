@@ -23,10 +23,10 @@ use shared_types::{
     frame_flags, mask_flags, FrameHeader, MasksHeader, Route, RouteKind, ServiceKind, StageStamps,
     Track, TrackState,
 };
-use slam::ply::write_ply;
 use slam::rgbd_tracker::RgbdTracker;
 use slam::scripted::ScriptedTracker;
 use slam::tracker::{TrackInput, Tracker};
+use slam_core::io::ply::write_ply;
 
 #[derive(Debug, Parser)]
 #[command(about = "dynslam slam: tracks frames with dynamic-object masks")]

@@ -1,12 +1,12 @@
 //! The `orb-rgbd` backend of the SLAM service: the SLAM core
-//! ([`crate::core::system::System`]) behind the service's [`Tracker`] seam.
+//! ([`slam_core::System`]) behind the service's [`Tracker`] seam.
 
 use pipeline::config::PipelineConfig;
 use shared_types::TrackState;
+use slam_core::io::ply::ColouredPoint;
+use slam_core::System;
 
-use crate::core::camera::Camera;
-use crate::core::system::{SlamParams, System};
-use crate::ply::ColouredPoint;
+use crate::convert;
 use crate::tracker::{TrackInput, TrackOutcome, Tracker};
 
 pub struct RgbdTracker {
@@ -22,13 +22,9 @@ pub struct RgbdTracker {
 
 impl RgbdTracker {
     pub fn new(config: &PipelineConfig) -> Self {
-        let camera = Camera::from_config(&config.camera, config.source.depth_scale as f64);
-        let mut params = SlamParams::default();
-        if let Some(t) = config.services.slam.threads {
-            params.orb.threads = t.max(1);
-        }
+        let camera = convert::camera(&config.camera, config.source.depth_scale as f64);
         Self {
-            system: System::new(params, camera),
+            system: System::new(convert::params(config), camera),
             depth: Vec::new(),
             blackout: config.services.slam.mask_mode == "blackout",
             painted: Vec::new(),
@@ -74,23 +70,21 @@ impl Tracker for RgbdTracker {
         let (t, q) = (r.pose_wc.translation.vector, r.pose_wc.rotation);
         TrackOutcome {
             pose: [t.x, t.y, t.z, q.i, q.j, q.k, q.w],
-            state: r.state,
+            state: convert::track_state(r.state),
             keyframe_inserted: r.keyframe_inserted,
             // Lost frames ask for the segmenter too: relocalising on
             // fresh masks is what a dynamic scene needs.
-            next_needs_keyframe: r.next_needs_keyframe || r.state == TrackState::Lost,
-            counts: r.counts,
+            next_needs_keyframe: r.next_needs_keyframe
+                || convert::track_state(r.state) == TrackState::Lost,
+            counts: convert::counts(&r.counts),
         }
     }
 
     fn map_points(&mut self) -> Vec<ColouredPoint> {
         self.system
             .map()
-            .points
-            .iter()
-            // Culled points keep their slot but are no longer matched.
-            .filter(|p| p.visible > 0)
-            .map(|p| ColouredPoint {
+            .live_points()
+            .map(|(_, p)| ColouredPoint {
                 position: p.position.into(),
                 colour: p.colour,
             })

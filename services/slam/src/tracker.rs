@@ -35,7 +35,7 @@ pub trait Tracker {
     fn name(&self) -> &str;
     fn track(&mut self, input: &TrackInput) -> TrackOutcome;
     /// The map's points (empty for trackers without a map).
-    fn map_points(&mut self) -> Vec<crate::ply::ColouredPoint> {
+    fn map_points(&mut self) -> Vec<slam_core::io::ply::ColouredPoint> {
         Vec::new()
     }
 }

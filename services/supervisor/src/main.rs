@@ -586,7 +586,7 @@ fn eval(
     out: Option<&std::path::Path>,
     plot: Option<&std::path::Path>,
 ) -> Result<()> {
-    use slam::eval::{evaluate_files, Alignment, EvalOptions};
+    use slam_core::eval::{evaluate_files, Alignment, EvalOptions};
     if !(max_diff.is_finite() && max_diff > 0.0) {
         anyhow::bail!("--max-diff {max_diff} must be a positive number of seconds");
     }

@@ -14,7 +14,7 @@ use anyhow::{bail, Context, Result};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 use shared_types::StageStamps;
-use slam::trajectory::Trajectory;
+use slam_core::io::trajectory::Trajectory;
 
 pub const FRAMES_CSV: &str = "frames.csv";
 

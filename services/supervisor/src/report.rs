@@ -16,8 +16,8 @@ use image::{imageops, GrayImage, Rgb, RgbImage};
 use pipeline::config::PipelineConfig;
 use plotters::style::RGBColor;
 use serde::Serialize;
-use slam::eval::{evaluate, EvalOptions, EvalSummary};
-use slam::trajectory::Trajectory;
+use slam_core::eval::{evaluate, EvalOptions, EvalSummary};
+use slam_core::io::trajectory::Trajectory;
 
 use crate::latency::{self, StageSummary, STAGES};
 use crate::mask_record::{mask_file, read_rows, MaskRow};
@@ -383,7 +383,7 @@ pub fn write(
     writeln!(md, "- `frames.csv`: one row per frame (state, route, pose, features, features removed by masks, inliers, stage timestamps)")?;
     writeln!(md, "- `masks/`, `masks.csv`: the label image SLAM got for each frame (0 background, i+1 instance i)")?;
     let map = run_dir.join(crate::run::MAP_FILE);
-    match slam::ply::read_ply(&map) {
+    match slam_core::io::ply::read_ply(&map) {
         Ok(points) => writeln!(
             md,
             "- `map.ply`: {} map points with colour (world frame)",

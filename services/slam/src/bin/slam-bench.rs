@@ -18,12 +18,11 @@ use clap::Parser;
 use pipeline::config::{CameraConfig, PipelineConfig};
 use pipeline::progress::Progress;
 use pipeline::stats::percentile;
-use shared_types::TrackState;
-use slam::core::camera::Camera;
-use slam::core::orb::{GrayU8, OrbBackend, OrbExtractor, OrbParams};
-use slam::core::system::{SlamParams, System};
-use slam::eval::{evaluate_files, EvalOptions};
-use slam::trajectory::Trajectory;
+use slam::convert;
+use slam_core::eval::{evaluate_files, EvalOptions};
+use slam_core::features::orb::{GrayU8, OrbBackend, OrbExtractor, OrbParams};
+use slam_core::io::trajectory::Trajectory;
+use slam_core::{MapFile, SlamParams, System};
 
 #[derive(Debug, Parser)]
 #[command(about = "SLAM core: ms per frame per step, tracking and accuracy")]
@@ -62,6 +61,17 @@ struct Args {
     /// No new points triangulated between keyframes (depth only).
     #[arg(long)]
     no_triangulation: bool,
+    /// Start from this map file (poses come out in its world frame: the
+    /// first frames relocalise against its keyframes).
+    #[arg(long)]
+    load_map: Option<PathBuf>,
+    /// Write the map to this file at the end.
+    #[arg(long)]
+    save_map: Option<PathBuf>,
+    /// Localization mode: track against the loaded map, add no keyframe or
+    /// point (needs --load-map).
+    #[arg(long)]
+    localize_only: bool,
     /// Fuse duplicate points between keyframes (off by default).
     #[arg(long)]
     fusion: bool,
@@ -92,7 +102,7 @@ fn orb_backend(name: &str) -> Result<OrbBackend> {
 fn main() -> Result<()> {
     let args = Args::parse();
     let cfg = PipelineConfig::load_or_default(args.config.as_deref())?;
-    let mut camera = Camera::from_config(&cfg.camera, cfg.source.depth_scale as f64);
+    let mut camera = convert::camera(&cfg.camera, cfg.source.depth_scale as f64);
     if let Some(r) = args.readout {
         anyhow::ensure!(
             CameraConfig::READOUT_S.contains(&r),
@@ -134,7 +144,29 @@ fn main() -> Result<()> {
     if let Some(n) = args.local_ba {
         params.local_ba_keyframes = n;
     }
-    let mut system = System::new(params, camera);
+    anyhow::ensure!(
+        !args.localize_only || args.load_map.is_some(),
+        "--localize-only needs a map to localise in: give --load-map FILE"
+    );
+    let mut system = match &args.load_map {
+        Some(path) => {
+            let file = MapFile::read(path)?;
+            file.check_compatible(&camera, &params)
+                .map_err(|problem| slam_core::MapFileError {
+                    path: path.clone(),
+                    problem,
+                })?;
+            println!(
+                "map {}: {} keyframes, {} points",
+                path.display(),
+                file.map.live_keyframes().count(),
+                file.map.live_point_count()
+            );
+            System::with_map(params, camera, file)
+        }
+        None => System::new(params, camera),
+    };
+    system.set_localize_only(args.localize_only);
     let (mut extract, mut track, mut total) = (Vec::new(), Vec::new(), Vec::new());
     // Local mapping time per keyframe (on its thread unless --inline-mapping).
     let mut mapping = Vec::new();
@@ -186,7 +218,7 @@ fn main() -> Result<()> {
         extract.push(r.extract_ms);
         track.push(r.track_ms);
         total.push(r.extract_ms + r.track_ms);
-        if matches!(r.state, TrackState::Ok | TrackState::Relocalised) {
+        if r.state.is_tracked() {
             tracked += 1;
         }
         trajectory.stamps.push(f.timestamp);
@@ -222,16 +254,20 @@ fn main() -> Result<()> {
         );
     }
     let mapped = system.mapping_counts();
+    let inserted = system.keyframes_inserted();
+    if let Some(path) = &args.save_map {
+        system.save_map(path)?;
+        println!("map saved to {}", path.display());
+    }
     let map = system.map();
     let live = map.live_keyframes().count();
     println!(
-        "tracked {tracked}/{} frames ({:.1} %), {live} keyframes ({} inserted, {} culled), {} map points ({} in use)",
+        "tracked {tracked}/{} frames ({:.1} %), {live} keyframes ({inserted} inserted by this run, {} culled), {} map points ({} in use)",
         frames.len(),
         100.0 * tracked as f64 / frames.len().max(1) as f64,
-        map.keyframes.len(),
         map.keyframes.len() - live,
         map.points.len(),
-        map.points.iter().filter(|p| p.visible > 0).count()
+        map.live_point_count()
     );
     println!(
         "local mapping: {} points triangulated, {} duplicates fused, {} observations added",

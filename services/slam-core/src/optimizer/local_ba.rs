@@ -16,11 +16,11 @@ use nalgebra::{
 
 use std::ops::{AddAssign, SubAssign};
 
-use super::camera::Camera;
-use super::optimize::{
+use super::pose::{
     chi2_error, chi2_threshold, huber_cost, pose_row, projection_rows, renormalized,
     stereo_residual,
 };
+use crate::camera::Camera;
 
 /// One measurement of point `point` in keyframe `pose` (indices into the
 /// problem's arrays).
@@ -268,11 +268,11 @@ fn optimise(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::rng::SplitMix64;
     use nalgebra::Point3;
-    use pipeline::rng::SplitMix64;
 
     fn camera() -> Camera {
-        Camera::from_config(&pipeline::config::CameraConfig::default(), 5000.0)
+        Camera::tum_fr1()
     }
 
     /// Five keyframes looking at a cloud of points; every point measured

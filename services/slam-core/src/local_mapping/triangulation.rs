@@ -9,24 +9,19 @@
 //! descriptor, triangulated linearly, and kept when the rays have parallax,
 //! the point lies in front of both cameras, reprojects within the chi-square
 //! bound of each keypoint's level, and its distances agree with the two
-//! pyramid levels. [`super::map::Map::cull_points`] removes the ones no
+//! pyramid levels. [`super::culling`] removes the ones no
 //! third keyframe confirms.
 
 use nalgebra::{Matrix3, Point3, RowVector4, Vector3};
 
-use super::camera::Camera;
-use super::map::{KeyFrame, Map, MapPoint, SpareKeypoint};
-use super::optimize::chi2_threshold;
-use super::orb::{hamming, MATCH_MAX_DISTANCE};
+use crate::camera::Camera;
+use crate::map::{KeyFrame, Map, MapPoint, SpareKeypoint};
+use crate::matcher::epipolar_matches;
+use crate::matcher::ray;
+use crate::optimizer::pose::chi2_threshold;
 
-/// The best match must beat the second best along the line by this ratio:
-/// a repeated texture gives many candidates on one epipolar line.
-const RATIO: f64 = 0.9;
 /// Rays closer than this (cosine of 1.15 degrees) fix depth too poorly.
 const MAX_PARALLAX_COS: f64 = 0.9998;
-/// Chi-square (1 degree of freedom, 95 %) of a keypoint's distance to the
-/// epipolar line, in units of its level's sigma.
-const EPIPOLAR_CHI2: f64 = 3.84;
 
 impl Map {
     /// Triangulates new points between keyframe `id` and `neighbours`;
@@ -99,72 +94,6 @@ impl KeyFrame {
     }
 }
 
-/// Normalised image coordinates (z = 1) of a keypoint.
-fn ray(camera: &Camera, s: &SpareKeypoint) -> Vector3<f64> {
-    camera.unproject(s.measurement.u, s.measurement.v, 1.0)
-}
-
-/// Pairs (spare index in kf1, spare index in kf2) of keypoints with close
-/// descriptors whose kf2 keypoint lies on the epipolar line of the kf1 one
-/// (within its level's chi-square bound) and away from the epipole, kf1's
-/// keypoints already `taken` left out.
-fn epipolar_matches(
-    camera: &Camera,
-    kf1: &KeyFrame,
-    kf2: &KeyFrame,
-    taken: &[Option<usize>],
-) -> Vec<(usize, usize)> {
-    // Camera 2 from camera 1, and the essential matrix [t]x R.
-    let t21 = kf2.pose_cw * kf1.pose_cw.inverse();
-    let essential =
-        t21.translation.vector.cross_matrix() * t21.rotation.to_rotation_matrix().matrix();
-    let epipole = {
-        let c1 = t21.translation.vector;
-        (c1.z > 1e-6).then(|| camera.project(&c1))
-    };
-    let rays2: Vec<Vector3<f64>> = kf2.spare.iter().map(|s| ray(camera, s)).collect();
-    let mut pairs = Vec::new();
-    for (i, s1) in kf1.spare.iter().enumerate() {
-        if taken[i].is_some() {
-            continue;
-        }
-        let m1 = &s1.measurement;
-        let line = essential * ray(camera, s1);
-        let norm = line.x.hypot(line.y);
-        if norm < 1e-12 {
-            continue;
-        }
-        let (mut best, mut second) = ((u32::MAX, 0), u32::MAX);
-        for (j, s2) in kf2.spare.iter().enumerate() {
-            let m2 = &s2.measurement;
-            let d = hamming(&m1.descriptor, &m2.descriptor);
-            if d > MATCH_MAX_DISTANCE || d >= second {
-                continue;
-            }
-            let sigma2 = m2.sigma() * m2.sigma();
-            if let Some((eu, ev)) = epipole {
-                if (m2.u - eu).powi(2) + (m2.v - ev).powi(2) < 100.0 * m2.sigma() {
-                    continue;
-                }
-            }
-            let off = line.dot(&rays2[j]).abs() / norm * camera.fx;
-            if off * off > EPIPOLAR_CHI2 * sigma2 {
-                continue;
-            }
-            if d < best.0 {
-                second = best.0;
-                best = (d, j);
-            } else {
-                second = d;
-            }
-        }
-        if best.0 <= MATCH_MAX_DISTANCE && (best.0 as f64) < RATIO * second as f64 {
-            pairs.push((i, best.1));
-        }
-    }
-    pairs
-}
-
 /// The world point two keypoints see (linear triangulation, least squares
 /// on the four DLT rows), if it passes the parallax, cheirality,
 /// reprojection and scale checks.
@@ -229,12 +158,11 @@ fn triangulate_pair(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::core::map::KeyFrameObservation;
+    use crate::map::KeyFrameObservation;
     use nalgebra::{Isometry3, Translation3, UnitQuaternion};
-    use pipeline::config::CameraConfig;
 
     fn camera() -> Camera {
-        let mut c = Camera::from_config(&CameraConfig::default(), 5000.0);
+        let mut c = Camera::tum_fr1();
         c.dist = [0.0; 5];
         c
     }
@@ -246,7 +174,7 @@ mod tests {
             .map(|(i, x)| {
                 let (u, v) = camera.project(&(pose_cw * Point3::from(*x)).coords);
                 // Distinct descriptors (far apart), the same in both keyframes.
-                let mut rng = pipeline::rng::SplitMix64::new(i as u64 + 1);
+                let mut rng = crate::rng::SplitMix64::new(i as u64 + 1);
                 let descriptor = [0; 4].map(|_: u64| rng.next_u64());
                 SpareKeypoint {
                     measurement: KeyFrameObservation {
@@ -292,11 +220,11 @@ mod tests {
             UnitQuaternion::from_euler_angles(0.01, 0.05, 0.0),
         );
         let mut map = Map {
-            points: Vec::new(),
             keyframes: vec![
                 keyframe(Isometry3::identity(), &camera, &world),
                 keyframe(second, &camera, &world),
             ],
+            ..Map::default()
         };
         let made = map.triangulate(1, &[0], &camera, 1.2);
         assert_eq!(made, world.len());
@@ -325,11 +253,11 @@ mod tests {
         let world = vec![Vector3::new(0.1, 0.2, 3.0), Vector3::new(-0.4, 0.1, 2.5)];
         let near = Isometry3::translation(-0.03, 0.0, 0.0);
         let mut map = Map {
-            points: Vec::new(),
             keyframes: vec![
                 keyframe(Isometry3::identity(), &camera, &world),
                 keyframe(near, &camera, &world),
             ],
+            ..Map::default()
         };
         assert_eq!(map.triangulate(1, &[0], &camera, 1.2), 0);
         map.keyframes[1] = keyframe(Isometry3::translation(-0.3, 0.0, 0.0), &camera, &world);

@@ -68,7 +68,7 @@ mod tests {
     use std::path::Path;
 
     use super::*;
-    use crate::core::orb::hamming;
+    use crate::features::orb::hamming;
 
     /// A real TUM frame (../shared), grey.
     fn frame() -> GrayU8 {

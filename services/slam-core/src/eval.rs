@@ -11,10 +11,11 @@
 
 use std::path::Path;
 
-use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
 use serde::Serialize;
 
-use crate::trajectory::{Trajectory, TrajectoryError};
+use crate::geometry::alignment::{umeyama, Similarity};
+use crate::io::trajectory::{Trajectory, TrajectoryError};
 
 /// How the estimate is aligned to the reference before ATE.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -25,76 +26,6 @@ pub enum Alignment {
     Se3,
     /// Rotation + translation + scale (monocular).
     Sim3,
-}
-
-/// A similarity transform `y = scale * R x + t`.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Similarity {
-    pub rotation: Rotation3<f64>,
-    pub translation: Vector3<f64>,
-    pub scale: f64,
-}
-
-impl Similarity {
-    pub fn identity() -> Self {
-        Self {
-            rotation: Rotation3::identity(),
-            translation: Vector3::zeros(),
-            scale: 1.0,
-        }
-    }
-
-    pub fn apply_point(&self, p: &Vector3<f64>) -> Vector3<f64> {
-        self.scale * (self.rotation * p) + self.translation
-    }
-
-    /// Applies the transform to a pose (scales its translation).
-    pub fn apply_pose(&self, pose: &Isometry3<f64>) -> Isometry3<f64> {
-        let t = self.apply_point(&pose.translation.vector);
-        let r = UnitQuaternion::from_rotation_matrix(&self.rotation) * pose.rotation;
-        Isometry3::from_parts(t.into(), r)
-    }
-}
-
-/// Umeyama's least-squares similarity mapping points `x` onto `y`
-/// (same as evo's `umeyama_alignment`).
-pub fn umeyama(x: &[Vector3<f64>], y: &[Vector3<f64>], with_scale: bool) -> Option<Similarity> {
-    let n = x.len();
-    if n < 3 || y.len() != n {
-        return None;
-    }
-    let mean_x = x.iter().sum::<Vector3<f64>>() / n as f64;
-    let mean_y = y.iter().sum::<Vector3<f64>>() / n as f64;
-    let sigma_x = x.iter().map(|p| (p - mean_x).norm_squared()).sum::<f64>() / n as f64;
-    let mut cov = Matrix3::zeros();
-    for (px, py) in x.iter().zip(y) {
-        cov += (py - mean_y) * (px - mean_x).transpose();
-    }
-    cov /= n as f64;
-    let svd = cov.svd(true, true);
-    let (u, v_t) = (svd.u?, svd.v_t?);
-    let d = svd.singular_values;
-    // Reflection guard on the smallest singular value (numpy sorts them;
-    // nalgebra does not).
-    let mut s = Vector3::new(1.0, 1.0, 1.0);
-    if u.determinant() * v_t.determinant() < 0.0 {
-        s[d.imin()] = -1.0;
-    }
-    let r = u * Matrix3::from_diagonal(&s) * v_t;
-    let scale = if with_scale {
-        if sigma_x <= 0.0 {
-            return None;
-        }
-        d.component_mul(&s).sum() / sigma_x
-    } else {
-        1.0
-    };
-    let rotation = Rotation3::from_matrix_unchecked(r);
-    Some(Similarity {
-        rotation,
-        translation: mean_y - scale * (rotation * mean_x),
-        scale,
-    })
 }
 
 /// Statistics of an error series, with evo's names and definitions
@@ -378,6 +309,7 @@ pub fn evaluate_files(gt: &Path, est: &Path, opts: EvalOptions) -> Result<EvalSu
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::Rotation3;
 
     fn circle(n: usize, dt: f64) -> Trajectory {
         let poses = (0..n)

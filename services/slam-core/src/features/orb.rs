@@ -10,7 +10,7 @@
 
 use std::borrow::Cow;
 
-use pipeline::rng::SplitMix64;
+use crate::rng::SplitMix64;
 
 /// One keypoint, in level-0 pixel coordinates of the (distorted) image.
 #[derive(Debug, Clone, Copy, PartialEq)]

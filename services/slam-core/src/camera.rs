@@ -4,12 +4,12 @@
 //! coordinate (`ur = u - bf / z`).
 
 use nalgebra::Vector3;
-use pipeline::config::CameraConfig;
+use serde::{Deserialize, Serialize};
 
 /// An image extent in pixels: x0, x1, y0, y1.
 pub type Bounds = (f64, f64, f64, f64);
 
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Camera {
     pub fx: f64,
     pub fy: f64,
@@ -26,17 +26,37 @@ pub struct Camera {
 }
 
 impl Camera {
-    pub fn from_config(c: &CameraConfig, depth_scale: f64) -> Self {
+    /// A camera with intrinsics `fx fy cx cy`, distortion `dist` (k1 k2
+    /// p1 p2 k3), depth in `depth_scale` units per metre, a rolling
+    /// shutter reading out in `readout_s` (0: global shutter) and
+    /// ORB-SLAM2's virtual baseline for TUM (bf = 40).
+    pub fn new(
+        [fx, fy, cx, cy]: [f64; 4],
+        dist: [f64; 5],
+        depth_scale: f64,
+        readout_s: f64,
+    ) -> Self {
         Self {
-            fx: c.fx,
-            fy: c.fy,
-            cx: c.cx,
-            cy: c.cy,
-            dist: c.distortion,
+            fx,
+            fy,
+            cx,
+            cy,
+            dist,
             bf: 40.0,
             depth_scale,
-            readout_s: c.readout_s,
+            readout_s,
         }
+    }
+
+    /// TUM RGB-D Freiburg 1 (the calibration the benchmark publishes, its
+    /// depth in 5000 units per metre, 18 ms rolling-shutter readout).
+    pub fn tum_fr1() -> Self {
+        Self::new(
+            [517.306408, 516.469215, 318.643040, 255.313989],
+            [0.262383, -0.953104, -0.005358, 0.002628, 1.163314],
+            5000.0,
+            0.018,
+        )
     }
 
     /// Pixel of a distorted image to the ideal pinhole pixel (fixed-point
@@ -101,7 +121,7 @@ mod tests {
 
     #[test]
     fn undistort_inverts_distort_over_the_image() {
-        let cam = Camera::from_config(&CameraConfig::default(), 5000.0);
+        let cam = Camera::tum_fr1();
         for (u, v) in [(10.0, 10.0), (320.0, 240.0), (630.0, 470.0), (100.0, 400.0)] {
             let (ud, vd) = cam.distort(u, v);
             let (uu, vv) = cam.undistort(ud, vd);

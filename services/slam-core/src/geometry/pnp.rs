@@ -1,5 +1,5 @@
 //! Camera pose from 2D-3D matches (Perspective-n-Point), for relocalising
-//! a frame whose keypoints lack depth: RANSAC over samples of six matches,
+//! a frame whose keypoints lack depth: RANSAC ([`super::ransac`]) over samples of six matches,
 //! each solved by the normalised direct linear transform, scored by
 //! reprojection error (chi-square at 95 %, per pyramid level as the pose
 //! optimiser does), then the best hypothesis refined by the motion-only
@@ -12,10 +12,10 @@
 use nalgebra::{
     DMatrix, Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3,
 };
-use pipeline::rng::SplitMix64;
 
-use super::camera::Camera;
-use super::optimize::{chi2_threshold, is_finite_pose, optimize_pose, Observation};
+use super::ransac::Ransac;
+use crate::camera::Camera;
+use crate::optimizer::pose::{chi2_threshold, is_finite_pose, optimize_pose, Observation};
 
 /// A map point matched to an (undistorted) keypoint.
 #[derive(Debug, Clone, Copy)]
@@ -40,29 +40,22 @@ pub fn pnp_ransac(
     if matches.len() < SAMPLE.max(min_inliers) {
         return None;
     }
-    let mut rng = SplitMix64::new(0x9E3779B9);
-    let mut best: Option<(usize, Isometry3<f64>)> = None;
-    for _ in 0..iterations {
-        let mut sample = [0usize; SAMPLE];
-        for i in 0..SAMPLE {
-            sample[i] = loop {
-                let j = rng.below(matches.len());
-                if !sample[..i].contains(&j) {
-                    break j;
-                }
-            };
-        }
-        let chosen: Vec<PnpMatch> = sample.iter().map(|&i| matches[i]).collect();
-        let Some(pose) = dlt_pose(camera, &chosen) else {
-            continue;
-        };
-        let n = inliers(camera, &pose, matches).filter(|&b| b).count();
-        if best.is_none_or(|(m, _)| n > m) {
-            best = Some((n, pose));
-        }
-    }
-    let (n, mut pose) = best?;
-    if n < min_inliers {
+    let search = Ransac {
+        sample: SAMPLE,
+        iterations,
+        seed: 0x9E3779B9,
+    };
+    let (mut pose, inlying) = search.run(
+        matches.len(),
+        |sample| {
+            dlt_pose(
+                camera,
+                &sample.iter().map(|&i| matches[i]).collect::<Vec<_>>(),
+            )
+        },
+        |pose, i| inlier(camera, pose, &matches[i]),
+    )?;
+    if inlying.len() < min_inliers {
         return None;
     }
     // A hypothesis from six noisy matches is rough: refine on its inliers,
@@ -93,15 +86,18 @@ fn inliers<'a>(
     pose: &'a Isometry3<f64>,
     matches: &'a [PnpMatch],
 ) -> impl Iterator<Item = bool> + 'a {
-    matches.iter().map(move |m| {
-        let pc = pose * Point3::from(m.world);
-        if pc.z <= 0.0 {
-            return false;
-        }
-        let (u, v) = camera.project(&pc.coords);
-        // Reprojection chi-square (2 degrees of freedom, 95 %).
-        ((u - m.u).powi(2) + (v - m.v).powi(2)) * m.info < chi2_threshold(false)
-    })
+    matches.iter().map(move |m| inlier(camera, pose, m))
+}
+
+/// The match reprojects within the chi-square bound (2 degrees of freedom,
+/// 95 %) of its level.
+fn inlier(camera: &Camera, pose: &Isometry3<f64>, m: &PnpMatch) -> bool {
+    let pc = pose * Point3::from(m.world);
+    if pc.z <= 0.0 {
+        return false;
+    }
+    let (u, v) = camera.project(&pc.coords);
+    ((u - m.u).powi(2) + (v - m.v).powi(2)) * m.info < chi2_threshold(false)
 }
 
 /// The pose from at least six matches by the direct linear transform on
@@ -193,10 +189,10 @@ pub fn dlt_pose(camera: &Camera, matches: &[PnpMatch]) -> Option<Isometry3<f64>>
 #[cfg(test)]
 mod tests {
     use super::*;
-    use pipeline::config::CameraConfig;
+    use crate::rng::SplitMix64;
 
     fn camera() -> Camera {
-        Camera::from_config(&CameraConfig::default(), 5000.0)
+        Camera::tum_fr1()
     }
 
     /// Points spread over a room 1-4 m in front of the true camera, seen at

@@ -5,7 +5,7 @@
 
 use nalgebra::{Isometry3, Matrix6, Translation3, UnitQuaternion, Vector3, Vector6};
 
-use super::camera::Camera;
+use crate::camera::Camera;
 
 /// One map point seen in the frame.
 #[derive(Debug, Clone, Copy)]
@@ -240,11 +240,10 @@ fn huber(e2: f64, o: &Observation, robust: bool) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use pipeline::config::CameraConfig;
 
     #[test]
     fn recovers_a_pose_despite_outliers() {
-        let cam = Camera::from_config(&CameraConfig::default(), 5000.0);
+        let cam = Camera::tum_fr1();
         let truth = Isometry3::from_parts(
             Translation3::new(0.05, -0.02, 0.1),
             UnitQuaternion::from_euler_angles(0.03, -0.05, 0.02),

@@ -26,11 +26,11 @@ use std::collections::HashSet;
 
 use nalgebra::{Point3, Vector3};
 
-use super::camera::Camera;
-use super::grid::Grid;
-use super::map::{KeyFrameObservation, Map, MAPPING_NEIGHBOURS, SECOND_NEIGHBOURS};
-use super::optimize::{chi2_error, chi2_threshold};
-use super::orb::{hamming, MATCH_MAX_DISTANCE};
+use crate::camera::Camera;
+use crate::features::grid::Grid;
+use crate::features::orb::{hamming, MATCH_MAX_DISTANCE};
+use crate::map::{KeyFrameObservation, Map, MAPPING_NEIGHBOURS, SECOND_NEIGHBOURS};
+use crate::optimizer::pose::{chi2_error, chi2_threshold};
 
 /// Search window around a projection, in pixels at the predicted level
 /// (ORB-SLAM2's 3); the chi-square test on each candidate decides.
@@ -183,44 +183,17 @@ impl Map {
         self.keyframes[k].take_spare(&spare_taken);
         (fused, added)
     }
-
-    /// Point `gone` is point `keep`: its observers measure `keep` instead
-    /// (or drop the measurement where they already measure `keep`), its
-    /// tracking counts add to `keep`'s, and it is culled.
-    fn replace_point(&mut self, gone: usize, keep: usize) {
-        for o in std::mem::take(&mut self.points[gone].observers) {
-            let kf = &mut self.keyframes[o];
-            let Some(j) = kf.points.iter().position(|&q| q == gone) else {
-                continue;
-            };
-            if kf.points.contains(&keep) {
-                kf.points.swap_remove(j);
-                kf.measurements.swap_remove(j);
-            } else {
-                kf.points[j] = keep;
-                self.points[keep].observers.push(o);
-            }
-        }
-        let (visible, found) = (self.points[gone].visible, self.points[gone].found);
-        let kept = &mut self.points[keep];
-        kept.visible += visible;
-        kept.found += found;
-        let gone = &mut self.points[gone];
-        gone.visible = 0;
-        gone.found = 0;
-    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::core::map::{KeyFrame, MapPoint, SpareKeypoint};
-    use crate::core::orb::Descriptor;
+    use crate::features::orb::Descriptor;
+    use crate::map::{KeyFrame, MapPoint, SpareKeypoint};
     use nalgebra::Isometry3;
-    use pipeline::config::CameraConfig;
 
     fn descriptor(i: usize) -> Descriptor {
-        let mut rng = pipeline::rng::SplitMix64::new(i as u64 + 7);
+        let mut rng = crate::rng::SplitMix64::new(i as u64 + 7);
         [0; 4].map(|_: u64| rng.next_u64())
     }
 
@@ -278,7 +251,7 @@ mod tests {
     /// disagrees), and compaction then drops the merged ones.
     #[test]
     fn duplicates_merge_spare_keypoints_gain_points_and_other_depths_stay() {
-        let mut camera = Camera::from_config(&CameraConfig::default(), 5000.0);
+        let mut camera = Camera::tum_fr1();
         camera.dist = [0.0; 5];
         let world: Vec<Vector3<f64>> = (0..30)
             .map(|i| {
@@ -295,8 +268,8 @@ mod tests {
             Isometry3::translation(-0.1, 0.0, 0.0),
         ];
         let mut map = Map {
-            points: Vec::new(),
             keyframes: vec![keyframe(poses[0]), keyframe(poses[1])],
+            ..Map::default()
         };
         for (i, w) in world.iter().enumerate() {
             map.points.push(point(*w, i, 0, w.norm()));
@@ -353,18 +326,10 @@ mod tests {
         assert!(map.points[30..40]
             .iter()
             .all(|p| p.visible == 0 && p.observers.is_empty()));
-        // Compaction renumbers: the deeper points 40..45 become 30..35.
-        let before: Vec<Vector3<f64>> =
-            kf1.points.iter().map(|&p| map.points[p].position).collect();
-        let renumbered = map.compact();
-        assert_eq!(map.points.len(), 35);
-        assert_eq!(renumbered[31], None);
-        assert_eq!(renumbered[42], Some(32));
-        let after: Vec<Vector3<f64>> = map.keyframes[1]
-            .points
-            .iter()
-            .map(|&p| map.points[p].position)
-            .collect();
-        assert_eq!(before, after);
+        // Ids are stable: the merged-away points keep their (empty) slots,
+        // the deeper ones are still 40..45, and the map is consistent.
+        assert_eq!((map.points.len(), map.live_point_count()), (45, 35));
+        assert!(map.points[40..45].iter().all(|p| p.is_live()));
+        map.check_invariants().unwrap();
     }
 }

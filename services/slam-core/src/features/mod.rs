@@ -1,0 +1,9 @@
+//! Features: the ORB extractor (ours, or kornia-imgproc's behind the
+//! `kornia` feature), the grid keypoints are searched in, and the dynamic
+//! mask applied at detection.
+
+pub mod grid;
+#[cfg(feature = "kornia")]
+pub mod kornia_orb;
+pub mod mask;
+pub mod orb;

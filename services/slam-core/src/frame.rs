@@ -1,0 +1,144 @@
+//! One frame as tracking sees it: ORB keypoints outside the dynamic mask,
+//! undistorted, with their depth, colour and descriptors, bucketed in a
+//! grid for search by projection.
+
+use crate::camera::{Bounds, Camera};
+use crate::features::grid::Grid;
+use crate::features::mask::DynamicMask;
+use crate::features::orb::{Descriptor, GrayU8, KeyPoint, OrbExtractor};
+use crate::map::KeyFrameObservation;
+use crate::params::SlamParams;
+
+/// An RGB-D image pair with its optional dynamic-object mask.
+#[derive(Debug, Clone, Copy)]
+pub struct RgbdInput<'a> {
+    /// RGB8, row-major.
+    pub rgb: &'a [u8],
+    /// Depth in `Camera::depth_scale` units per metre (0: no depth).
+    pub depth: &'a [u16],
+    /// Labels (non-zero: dynamic object), one per pixel.
+    pub mask: Option<&'a [u8]>,
+    pub width: usize,
+    pub height: usize,
+    /// Seconds (the exposure of the middle row with a rolling shutter).
+    pub timestamp: f64,
+}
+
+impl RgbdInput<'_> {
+    /// The buffers match the size and the image is big enough to track.
+    pub fn is_well_formed(&self) -> bool {
+        let pixels = self.width * self.height;
+        self.width >= 64
+            && self.height >= 64
+            && self.rgb.len() == 3 * pixels
+            && self.depth.len() == pixels
+            && self.mask.is_none_or(|m| m.len() == pixels)
+    }
+}
+
+/// One frame's features.
+pub struct Frame {
+    pub kps: Vec<KeyPoint>,
+    /// Undistorted keypoint pixels.
+    pub un: Vec<(f64, f64)>,
+    pub descs: Vec<Descriptor>,
+    /// Metres, where the depth image had a value in range.
+    pub depth: Vec<Option<f64>>,
+    /// Colour under each keypoint.
+    pub colours: Vec<[u8; 3]>,
+    pub grid: Grid,
+    /// Undistorted image extent.
+    pub bounds: Bounds,
+    /// The pyramid's step (a level-l keypoint has scale `scale_factor^l`;
+    /// f32 as the extractor computes it).
+    pub scale_factor: f32,
+    /// Corners the dynamic mask rejected.
+    pub masked: usize,
+    /// Image rows (the rolling shutter's extent).
+    pub height: usize,
+}
+
+impl Frame {
+    /// Extracts the features of `input` outside its (dilated) mask.
+    /// `bounds` is the undistorted image extent for this size.
+    pub fn extract(
+        input: &RgbdInput,
+        extractor: &OrbExtractor,
+        camera: &Camera,
+        params: &SlamParams,
+        bounds: Bounds,
+    ) -> Self {
+        let (width, height) = (input.width, input.height);
+        let gray = GrayU8::from_rgb(input.rgb, width, height);
+        let mask = input
+            .mask
+            .map(|m| DynamicMask::new(m, width, height, params.mask_dilation_px));
+        let keep = |x: f32, y: f32| mask.as_ref().is_none_or(|m| m.keeps(x, y));
+        let (kps, descs, masked) = extractor.extract(&gray, &keep);
+        let un = kps
+            .iter()
+            .map(|k| camera.undistort(k.x as f64, k.y as f64))
+            .collect();
+        let depth = kps
+            .iter()
+            .map(|k| {
+                let (x, y) = (
+                    (k.x.round() as usize).min(width - 1),
+                    (k.y.round() as usize).min(height - 1),
+                );
+                let raw = input.depth.get(y * width + x).copied().unwrap_or(0);
+                let d = raw as f64 / camera.depth_scale;
+                (d >= params.min_depth_m && d <= params.max_depth_m).then_some(d)
+            })
+            .collect();
+        let colours = kps
+            .iter()
+            .map(|k| {
+                let i =
+                    3 * ((k.y as usize).min(height - 1) * width + (k.x as usize).min(width - 1));
+                [input.rgb[i], input.rgb[i + 1], input.rgb[i + 2]]
+            })
+            .collect();
+        let mut frame = Self {
+            kps,
+            un,
+            descs,
+            depth,
+            colours,
+            grid: Grid::new(&[], width, height),
+            bounds,
+            scale_factor: params.orb.scale_factor,
+            masked,
+            height,
+        };
+        frame.regrid(width, height);
+        frame
+    }
+
+    /// Rebuilds the search grid after the undistorted pixels moved.
+    pub fn regrid(&mut self, width: usize, height: usize) {
+        self.grid = Grid::new(&self.un, width, height);
+    }
+
+    /// Keypoint `k`'s scale (sigma of its pyramid level).
+    pub fn scale(&self, k: usize) -> f64 {
+        self.scale_factor.powi(self.kps[k].level as i32) as f64
+    }
+
+    /// How keypoint `k` measures a point: its pixel, the virtual right
+    /// pixel when its depth is nearer than `close_depth_m` (trusted), and
+    /// the information (1 / sigma^2) of its pyramid level.
+    pub fn measure(&self, k: usize, camera: &Camera, close_depth_m: f64) -> KeyFrameObservation {
+        let (u, v) = self.un[k];
+        let sigma = self.scale(k);
+        KeyFrameObservation {
+            u,
+            v,
+            ur: self.depth[k]
+                .filter(|&d| d < close_depth_m)
+                .map(|d| u - camera.bf / d),
+            info: 1.0 / (sigma * sigma),
+            descriptor: self.descs[k],
+        }
+    }
+}

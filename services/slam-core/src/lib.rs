@@ -1,0 +1,48 @@
+//! dynslam's SLAM core: ORB-SLAM2's RGB-D system in Rust, with dynamic-
+//! object masks applied at feature detection. A library with no IPC in it:
+//! feed it frames (and masks), get poses and a map. The SLAM service
+//! (`services/slam`) is a thin shell that converts shared-memory frames to
+//! [`frame::RgbdInput`] and results to the wire types.
+//!
+//! Module map (ORB-SLAM2's, one concern each):
+//! - [`features`]: ORB extraction, the keypoint grid, dynamic-mask filtering.
+//! - [`frame`]: one frame's features, undistorted, with depth.
+//! - [`map`]: keyframes and points in arenas with stable ids, covisibility
+//!   graph, spanning tree; the mutation API and its invariants.
+//! - [`matcher`]: matching by projection, by descriptor, along epipolar lines.
+//! - [`tracking`]: motion model, local map, keyframe decision,
+//!   relocalisation, rolling-shutter correction.
+//! - [`initialization`]: the first keyframe.
+//! - [`local_mapping`]: culling, triangulation, fusion, local BA, on its own
+//!   thread; map checkpoints.
+//! - [`geometry`]: the RANSAC driver, Umeyama alignment, PnP.
+//! - [`optimizer`]: motion-only pose optimisation, local bundle adjustment.
+//! - [`io`]: trajectories, PLY, the map file.
+//! - [`eval`]: ATE / RPE as evo defines them.
+//! - [`system`]: the facade.
+//!
+//! Loop closing and place recognition (`loop_closing`, `vocabulary`) are
+//! not here yet; see the README for how a loop closer will share the map.
+
+pub mod camera;
+pub mod eval;
+pub mod features;
+pub mod frame;
+pub mod geometry;
+pub mod initialization;
+pub mod io;
+pub mod local_mapping;
+pub mod map;
+pub mod matcher;
+pub mod optimizer;
+pub mod params;
+pub mod rng;
+pub mod system;
+pub mod tracking;
+
+pub use camera::Camera;
+pub use frame::RgbdInput;
+pub use io::map_file::{MapFile, MapFileError};
+pub use params::SlamParams;
+pub use system::{FrameCounts, FrameResult, System};
+pub use tracking::TrackingState;

@@ -1,0 +1,186 @@
+//! Descriptor matching, in one place: a frame against map points by
+//! projection (tracking), a frame against a keyframe's points by
+//! descriptor alone (relocalisation), and two keyframes' spare keypoints
+//! along the epipolar line (triangulation). Fusion's search, which merges
+//! as it goes, is in [`crate::local_mapping::fusion`].
+
+use nalgebra::{Isometry3, Point3, Vector3};
+
+use crate::camera::Camera;
+use crate::features::orb::{hamming, Descriptor, MATCH_MAX_DISTANCE};
+use crate::frame::Frame;
+use crate::map::{KeyFrame, Map, SpareKeypoint};
+
+/// The best match must beat the second best along the line by this ratio:
+/// a repeated texture gives many candidates on one epipolar line.
+const EPIPOLAR_RATIO: f64 = 0.9;
+/// Chi-square (1 degree of freedom, 95 %) of a keypoint's distance to the
+/// epipolar line, in units of its level's sigma.
+const EPIPOLAR_CHI2: f64 = 3.84;
+/// Relocalisation's ratio test between the best and second-best point.
+const RELOCALISATION_RATIO: f64 = 0.8;
+
+/// A search by projection.
+#[derive(Debug, Clone, Copy)]
+pub struct ProjectionSearch {
+    /// Camera from world the points are projected with.
+    pub pose: Isometry3<f64>,
+    /// Pixels (grown with the keypoint's scale, up to 2x).
+    pub radius: f64,
+    /// Points nearer than this (metres) are not searched.
+    pub min_depth_m: f64,
+    /// Count each point that lands in the image as seen (`visible`), for
+    /// recent-point culling: done on the final pass only.
+    pub count_visible: bool,
+}
+
+/// For each keypoint of `frame`, the best of the map points `candidates`
+/// projecting within the search radius with a descriptor distance below
+/// the threshold (each map point used once, the closer descriptor wins).
+pub fn match_by_projection(
+    map: &mut Map,
+    frame: &Frame,
+    camera: &Camera,
+    candidates: &[usize],
+    search: &ProjectionSearch,
+) -> Vec<Option<usize>> {
+    let mut best: Vec<Option<(usize, u32)>> = vec![None; frame.kps.len()];
+    let mut near = Vec::new();
+    for &p in candidates {
+        let pc = search.pose * Point3::from(map.points[p].position);
+        if pc.z < search.min_depth_m {
+            continue;
+        }
+        let (u, v) = camera.project(&pc.coords);
+        let (x0, x1, y0, y1) = frame.bounds;
+        if !(x0..x1).contains(&u) || !(y0..y1).contains(&v) {
+            continue;
+        }
+        // Coarse-level keypoints are located less precisely: the window
+        // grows with their scale (up to 2x here).
+        frame.grid.near(u, v, 2.0 * search.radius, &mut near);
+        if near.is_empty() {
+            continue;
+        }
+        if search.count_visible {
+            map.points[p].visible += 1;
+        }
+        let mut cand: Option<(usize, u32)> = None;
+        for &k in &near {
+            let (ku, kv) = frame.un[k];
+            let r = search.radius * frame.scale(k).min(2.0);
+            if (ku - u).powi(2) + (kv - v).powi(2) > r * r {
+                continue;
+            }
+            let d = hamming(&map.points[p].descriptor, &frame.descs[k]);
+            if d <= MATCH_MAX_DISTANCE && cand.is_none_or(|c| d < c.1) {
+                cand = Some((k, d));
+            }
+        }
+        if let Some((k, d)) = cand {
+            if best[k].is_none_or(|b| d < b.1) {
+                best[k] = Some((p, d));
+            }
+        }
+    }
+    best.into_iter().map(|b| b.map(|(p, _)| p)).collect()
+}
+
+/// (keypoint, map point) of every matched keypoint.
+pub fn matched_pairs(matched: &[Option<usize>]) -> Vec<(usize, usize)> {
+    matched
+        .iter()
+        .enumerate()
+        .filter_map(|(k, m)| m.map(|p| (k, p)))
+        .collect()
+}
+
+/// For each descriptor, the point of keyframe `kf` closest in descriptor
+/// space when it is below the threshold and clearly better than the
+/// second best (ratio test): (keypoint index, point id).
+pub fn match_to_keyframe(map: &Map, kf: &KeyFrame, descs: &[Descriptor]) -> Vec<(usize, usize)> {
+    let mut pairs = Vec::new();
+    for (k, d) in descs.iter().enumerate() {
+        let (mut b1, mut b2, mut bp) = (u32::MAX, u32::MAX, 0);
+        for &p in &kf.points {
+            let h = hamming(d, &map.points[p].descriptor);
+            if h < b1 {
+                b2 = b1;
+                b1 = h;
+                bp = p;
+            } else if h < b2 {
+                b2 = h;
+            }
+        }
+        if b1 <= MATCH_MAX_DISTANCE && (b1 as f64) < RELOCALISATION_RATIO * b2 as f64 {
+            pairs.push((k, bp));
+        }
+    }
+    pairs
+}
+
+/// Normalised image coordinates (z = 1) of a keypoint.
+pub(crate) fn ray(camera: &Camera, s: &SpareKeypoint) -> Vector3<f64> {
+    camera.unproject(s.measurement.u, s.measurement.v, 1.0)
+}
+
+/// Pairs (spare index in kf1, spare index in kf2) of keypoints with close
+/// descriptors whose kf2 keypoint lies on the epipolar line of the kf1 one
+/// (within its level's chi-square bound) and away from the epipole, kf1's
+/// keypoints already `taken` left out.
+pub fn epipolar_matches(
+    camera: &Camera,
+    kf1: &KeyFrame,
+    kf2: &KeyFrame,
+    taken: &[Option<usize>],
+) -> Vec<(usize, usize)> {
+    // Camera 2 from camera 1, and the essential matrix [t]x R.
+    let t21 = kf2.pose_cw * kf1.pose_cw.inverse();
+    let essential =
+        t21.translation.vector.cross_matrix() * t21.rotation.to_rotation_matrix().matrix();
+    let epipole = {
+        let c1 = t21.translation.vector;
+        (c1.z > 1e-6).then(|| camera.project(&c1))
+    };
+    let rays2: Vec<Vector3<f64>> = kf2.spare.iter().map(|s| ray(camera, s)).collect();
+    let mut pairs = Vec::new();
+    for (i, s1) in kf1.spare.iter().enumerate() {
+        if taken[i].is_some() {
+            continue;
+        }
+        let m1 = &s1.measurement;
+        let line = essential * ray(camera, s1);
+        let norm = line.x.hypot(line.y);
+        if norm < 1e-12 {
+            continue;
+        }
+        let (mut best, mut second) = ((u32::MAX, 0), u32::MAX);
+        for (j, s2) in kf2.spare.iter().enumerate() {
+            let m2 = &s2.measurement;
+            let d = hamming(&m1.descriptor, &m2.descriptor);
+            if d > MATCH_MAX_DISTANCE || d >= second {
+                continue;
+            }
+            let sigma2 = m2.sigma() * m2.sigma();
+            if let Some((eu, ev)) = epipole {
+                if (m2.u - eu).powi(2) + (m2.v - ev).powi(2) < 100.0 * m2.sigma() {
+                    continue;
+                }
+            }
+            let off = line.dot(&rays2[j]).abs() / norm * camera.fx;
+            if off * off > EPIPOLAR_CHI2 * sigma2 {
+                continue;
+            }
+            if d < best.0 {
+                second = best.0;
+                best = (d, j);
+            } else {
+                second = d;
+            }
+        }
+        if best.0 <= MATCH_MAX_DISTANCE && (best.0 as f64) < EPIPOLAR_RATIO * second as f64 {
+            pairs.push((i, best.1));
+        }
+    }
+    pairs
+}

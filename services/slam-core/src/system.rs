@@ -1,0 +1,423 @@
+//! The SLAM system's facade: one call per RGB-D frame. It owns the map and
+//! wires the modules together, in ORB-SLAM2's order: features
+//! ([`crate::frame`]), initialisation ([`crate::initialization`]) or
+//! tracking ([`crate::tracking`]), the keyframe decision, and local mapping
+//! ([`crate::local_mapping`]) on its own thread while the next frame's
+//! features are extracted. Maps are saved and loaded with
+//! [`crate::io::map_file`]; a loaded map is tracked in, in its own world
+//! frame, after relocalisation. Not here yet (README): loop closing.
+
+use nalgebra::Isometry3;
+
+use crate::camera::{Bounds, Camera};
+use crate::features::orb::OrbExtractor;
+use crate::frame::{Frame, RgbdInput};
+use crate::initialization::initialise_rgbd;
+use crate::io::map_file::{MapFile, MapFileError};
+use crate::local_mapping::checkpoint::{CheckpointPolicy, Checkpointer};
+use crate::local_mapping::LocalMapper;
+use crate::map::{Map, MappingCounts, MappingReport};
+use crate::params::SlamParams;
+use crate::tracking::{Tracked, Tracking, TrackingState};
+
+/// What a frame cost and produced.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct FrameCounts {
+    pub features: u32,
+    /// Corners dropped because they fell inside a dynamic mask.
+    pub features_masked: u32,
+    pub inliers: u32,
+    /// Live map points and keyframes after this frame.
+    pub map_points: u32,
+    pub keyframes: u32,
+    /// Feature extraction, and local mapping of the keyframe whose mapping
+    /// finished during this frame (microseconds).
+    pub extract_us: u32,
+    pub mapping_us: u32,
+}
+
+/// What one call of `track_rgbd` reports.
+#[derive(Debug, Clone)]
+pub struct FrameResult {
+    /// World from camera.
+    pub pose_wc: Isometry3<f64>,
+    pub state: TrackingState,
+    pub keyframe_inserted: bool,
+    /// The next frame should become a keyframe (a hint for whoever decides
+    /// which frames get fresh masks).
+    pub next_needs_keyframe: bool,
+    pub counts: FrameCounts,
+    pub extract_ms: f64,
+    pub track_ms: f64,
+}
+
+pub struct System {
+    pub params: SlamParams,
+    camera: Camera,
+    extractor: OrbExtractor,
+    /// Owned here while tracking; lent to `mapper` after a keyframe until
+    /// the next frame is tracked (see `mapping`).
+    map: Map,
+    mapper: Option<LocalMapper>,
+    mapping: Mapping,
+    tracking: Tracking,
+    /// ORB-SLAM2's localization mode: track against the map, add nothing.
+    localize_only: bool,
+    /// Writes the map every N keyframes off the frame path (None: never).
+    checkpointer: Option<Checkpointer>,
+    /// Keyframes inserted since the map was made or loaded.
+    keyframes_inserted: usize,
+    /// Undistorted image extent, computed once per frame size.
+    bounds: Option<((usize, usize), Bounds)>,
+    /// Local mapping time of the keyframe whose mapping finished while this
+    /// frame was processed (0 if none).
+    mapping_ms: f64,
+    /// What local mapping did over the run so far.
+    mapped: MappingCounts,
+}
+
+/// Where the last keyframe's local mapping stands.
+enum Mapping {
+    /// Nothing to take back.
+    Idle,
+    /// The map is on the mapping thread.
+    OnThread,
+    /// Done inline (no mapping thread); its report still to be applied.
+    Inline(MappingReport),
+}
+
+fn to_ms(t: std::time::Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+impl System {
+    /// A system with an empty map: the first frame with depth starts it
+    /// and defines the world frame.
+    pub fn new(params: SlamParams, camera: Camera) -> Self {
+        let mapper = params
+            .mapping_thread
+            .then(|| LocalMapper::spawn(camera, params))
+            .and_then(|spawned| {
+                spawned
+                    .map_err(|e| {
+                        tracing::warn!("local mapping thread not started ({e}): mapping inline")
+                    })
+                    .ok()
+            });
+        Self {
+            extractor: OrbExtractor::new(params.orb),
+            params,
+            camera,
+            map: Map::default(),
+            mapper,
+            mapping: Mapping::Idle,
+            tracking: Tracking::new(camera, params),
+            localize_only: false,
+            checkpointer: None,
+            keyframes_inserted: 0,
+            bounds: None,
+            mapping_ms: 0.0,
+            mapped: MappingCounts::default(),
+        }
+    }
+
+    /// A system that goes on in a saved map, in its world frame: the first
+    /// frames relocalise against its keyframes. The file's camera and
+    /// pyramid must be this system's (see [`MapFile::check_compatible`]).
+    pub fn with_map(params: SlamParams, camera: Camera, file: MapFile) -> Self {
+        let mut system = Self::new(params, camera);
+        system.map = file.map;
+        system.tracking.start_lost();
+        system
+    }
+
+    /// ORB-SLAM2's localization mode: frames are tracked (and relocalised)
+    /// against the map, and no keyframe or point is added.
+    pub fn set_localize_only(&mut self, on: bool) {
+        self.localize_only = on;
+    }
+
+    /// Writes the map atomically to `policy.path` every
+    /// `policy.every_keyframes` inserted keyframes, on a writer thread from
+    /// a copy taken by local mapping (off the frame path).
+    pub fn set_checkpoint(&mut self, policy: Option<CheckpointPolicy>) {
+        self.checkpointer = policy.and_then(|p| {
+            Checkpointer::spawn(p, self.camera, self.params)
+                .map_err(|e| tracing::warn!("checkpoint writer not started: {e}"))
+                .ok()
+        });
+    }
+
+    /// The map as a file's contents (once local mapping has given it back).
+    pub fn map_file(&mut self) -> MapFile {
+        self.settle();
+        MapFile::new(self.camera, &self.params, self.map.clone())
+    }
+
+    /// Writes the map to `path` now (atomically: a temporary file, synced,
+    /// renamed), waiting for local mapping first.
+    pub fn save_map(&mut self, path: &std::path::Path) -> Result<(), MapFileError> {
+        self.settle();
+        MapFile::new(self.camera, &self.params, self.map.clone()).write(path)
+    }
+
+    /// Tracks one RGB-D frame taken at `timestamp` (seconds). `rgb` is
+    /// RGB8, `depth` u16 in `camera.depth_scale` units per metre (0: no
+    /// depth), `mask` an optional label image (non-zero: dynamic object).
+    /// The pose returned is the camera's at the middle image row's
+    /// exposure (with a rolling shutter, `camera.readout_s > 0`, the other
+    /// rows' keypoints are moved to that instant). Never panics on odd input:
+    /// blank, depthless or fully masked frames come back LOST (or
+    /// NOT_INITIALISED before the map exists).
+    pub fn track_rgbd(
+        &mut self,
+        rgb: &[u8],
+        depth: &[u16],
+        mask: Option<&[u8]>,
+        width: usize,
+        height: usize,
+        timestamp: f64,
+    ) -> FrameResult {
+        self.track(&RgbdInput {
+            rgb,
+            depth,
+            mask,
+            width,
+            height,
+            timestamp,
+        })
+    }
+
+    /// [`System::track_rgbd`] on a bundled input.
+    pub fn track(&mut self, input: &RgbdInput) -> FrameResult {
+        let t0 = std::time::Instant::now();
+        self.mapping_ms = 0.0;
+        if !input.is_well_formed() {
+            return self.skipped();
+        }
+        let (width, height) = (input.width, input.height);
+        let bounds = self.bounds(width, height);
+        let mut frame = Frame::extract(input, &self.extractor, &self.camera, &self.params, bounds);
+        // Rolling shutter: keypoints moved to the middle row's instant;
+        // their raw positions are kept for the second pass.
+        let raw = self.tracking.shutter_motion(None).map(|motion| {
+            let raw = (frame.un.clone(), frame.depth.clone());
+            self.tracking.undo_rolling_shutter(
+                &frame.kps,
+                &mut frame.un,
+                &mut frame.depth,
+                height,
+                motion,
+            );
+            frame.regrid(width, height);
+            raw
+        });
+        let extract_ms = to_ms(t0);
+        let t1 = std::time::Instant::now();
+        // The map comes back from local mapping (a wait, if it is not done,
+        // counts as tracking time).
+        self.settle();
+
+        let initialising = self.map.keyframes.is_empty();
+        let mut tracked = if initialising {
+            let started =
+                !self.localize_only && initialise_rgbd(&mut self.tracking, &mut self.map, &frame);
+            Tracked {
+                state: if started {
+                    TrackingState::Ok
+                } else {
+                    TrackingState::NotInitialised
+                },
+                pose_cw: Isometry3::identity(),
+                inliers: if started { frame.kps.len() } else { 0 },
+                matched: Vec::new(),
+            }
+        } else {
+            self.tracking.track(&mut self.map, &frame)
+        };
+        if let (TrackingState::Ok, Some(raw)) = (tracked.state, &raw) {
+            if let Some(refined) = self.tracking.refine_for_shutter(
+                &self.map,
+                &mut frame,
+                raw,
+                &tracked.pose_cw,
+                &tracked.matched,
+                input.timestamp,
+            ) {
+                tracked.pose_cw = refined;
+            }
+        }
+        // A successful initialisation made the first keyframe.
+        let mut keyframe_inserted = initialising && tracked.state == TrackingState::Ok;
+        if tracked.state.is_tracked() {
+            self.tracking.accept(&tracked, input.timestamp);
+            if !keyframe_inserted {
+                if !self.localize_only && self.tracking.need_keyframe(&tracked, &frame) {
+                    self.tracking.insert_keyframe(
+                        &mut self.map,
+                        &frame,
+                        &tracked.pose_cw,
+                        &tracked.matched,
+                        tracked.inliers,
+                    );
+                    keyframe_inserted = true;
+                } else {
+                    self.tracking.count_frame();
+                }
+            }
+        } else if !self.map.keyframes.is_empty() {
+            self.tracking.mark_lost();
+        }
+        let mut counts = FrameCounts {
+            features: frame.kps.len() as u32,
+            features_masked: frame.masked as u32,
+            extract_us: (extract_ms * 1e3) as u32,
+            inliers: tracked.inliers as u32,
+            map_points: self.map.live_point_count() as u32,
+            keyframes: self.map.live_keyframes().count() as u32,
+            ..Default::default()
+        };
+        if keyframe_inserted {
+            self.keyframes_inserted += 1;
+            self.start_mapping(self.map.keyframes.len() - 1);
+        }
+        counts.mapping_us = (self.mapping_ms * 1e3) as u32;
+        let next_needs_keyframe = !keyframe_inserted
+            && if self.localize_only {
+                // No keyframes come: the hint asks for fresh masks at the
+                // keyframe cadence (and when lost).
+                self.tracking.refresh_due()
+            } else {
+                self.tracking.next_needs_keyframe(tracked.inliers)
+            };
+        let pose_for_output = self.tracking.last_pose().unwrap_or(tracked.pose_cw);
+        FrameResult {
+            pose_wc: pose_for_output.inverse(),
+            state: tracked.state,
+            keyframe_inserted,
+            next_needs_keyframe,
+            counts,
+            extract_ms,
+            track_ms: to_ms(t1),
+        }
+    }
+
+    fn skipped(&self) -> FrameResult {
+        FrameResult {
+            pose_wc: self
+                .tracking
+                .last_pose()
+                .unwrap_or_else(Isometry3::identity)
+                .inverse(),
+            state: TrackingState::Skipped,
+            keyframe_inserted: false,
+            next_needs_keyframe: false,
+            counts: FrameCounts::default(),
+            extract_ms: 0.0,
+            track_ms: 0.0,
+        }
+    }
+
+    /// The map, once local mapping has given it back.
+    pub fn map(&mut self) -> &Map {
+        self.settle();
+        &self.map
+    }
+
+    /// Points local mapping triangulated and fused so far (once it has
+    /// given the map back).
+    pub fn mapping_counts(&mut self) -> MappingCounts {
+        self.settle();
+        self.mapped
+    }
+
+    /// Keyframes this system inserted (a loaded map's own not counted).
+    pub fn keyframes_inserted(&self) -> usize {
+        self.keyframes_inserted
+    }
+
+    /// Local mapping for keyframe `id`: on the mapping thread (the map goes
+    /// with it until `settle`) or, without one, here and now. Every
+    /// `every_keyframes`-th keyframe, the mapped map is copied for the
+    /// checkpoint writer.
+    fn start_mapping(&mut self, id: usize) {
+        let checkpoint = self
+            .checkpointer
+            .as_ref()
+            .filter(|c| self.keyframes_inserted.is_multiple_of(c.every_keyframes()))
+            .map(Checkpointer::sender);
+        if let Some(mapper) = &self.mapper {
+            match mapper.submit(std::mem::take(&mut self.map), id, checkpoint.clone()) {
+                Ok(()) => {
+                    self.mapping = Mapping::OnThread;
+                    return;
+                }
+                Err(map) => {
+                    tracing::error!("local mapping thread gone: mapping inline from now on");
+                    self.map = map;
+                    self.mapper = None;
+                }
+            }
+        }
+        let report = self.map.process_keyframe(id, &self.camera, &self.params);
+        if let Some(to_writer) = checkpoint {
+            to_writer.offer(&self.map);
+        }
+        self.mapping_ms = report.ms;
+        self.mapping = Mapping::Inline(report);
+    }
+
+    /// Takes the map back from local mapping (waiting for it) and applies
+    /// what it did: after local bundle adjustment tracking goes on from the
+    /// newest keyframe's adjusted pose (that keyframe is the last tracked
+    /// frame). If the mapping thread died the map is lost: tracking starts
+    /// a new one with the next frame.
+    fn settle(&mut self) {
+        let report = match std::mem::replace(&mut self.mapping, Mapping::Idle) {
+            Mapping::Idle => return,
+            Mapping::Inline(report) => report,
+            Mapping::OnThread => match self.mapper.as_ref().and_then(|m| m.collect()) {
+                Some((map, report)) => {
+                    self.map = map;
+                    self.mapping_ms = report.ms;
+                    report
+                }
+                None => {
+                    tracing::error!(
+                        "local mapping thread died: map lost, starting a new one (mapping inline)"
+                    );
+                    self.mapper = None;
+                    self.map = Map::default();
+                    self.tracking.reset();
+                    return;
+                }
+            },
+        };
+        self.mapped += report.counts;
+        if report.adjusted {
+            if let Some(kf) = self.map.keyframes.last() {
+                self.tracking.adopt_adjusted_pose(kf.pose_cw);
+            }
+        }
+    }
+
+    fn bounds(&mut self, width: usize, height: usize) -> Bounds {
+        match self.bounds {
+            Some((size, b)) if size == (width, height) => b,
+            _ => {
+                let b = self.camera.undistorted_bounds(width, height);
+                self.bounds = Some(((width, height), b));
+                b
+            }
+        }
+    }
+
+    /// World-from-camera poses of the keyframes in the map (culled ones
+    /// left out).
+    pub fn keyframe_poses(&mut self) -> Vec<Isometry3<f64>> {
+        self.map()
+            .live_keyframes()
+            .map(|(_, k)| k.pose_cw.inverse())
+            .collect()
+    }
+}

@@ -1,0 +1,341 @@
+//! Tracking as ORB-SLAM2 does it for RGB-D: the constant-velocity motion
+//! model predicts the pose, map points of the local map are matched by
+//! projection and the pose optimised (motion only, robust); if that fails
+//! the last pose is tried with a wider search. A lost frame triggers
+//! relocalisation ([`relocalisation`]). Keyframes are decided as ORB-SLAM2
+//! decides them (tracked points against the reference keyframe, frames
+//! since the last keyframe) and create new map points from the depth of the
+//! keypoints no map point explains. A rolling-shutter camera's keypoints
+//! are moved to the middle row's instant ([`rolling_shutter`]).
+
+mod local_map;
+mod relocalisation;
+pub(crate) mod rolling_shutter;
+
+use nalgebra::{Isometry3, Point3};
+
+use crate::camera::Camera;
+use crate::frame::Frame;
+use crate::map::{KeyFrame, Map, MapPoint, SpareKeypoint};
+use crate::matcher::{match_by_projection, matched_pairs, ProjectionSearch};
+use crate::optimizer::pose::{is_finite_pose, optimize_pose, renormalized, Observation};
+use crate::params::SlamParams;
+
+/// Tracked frames the rolling-shutter correction estimates the motion over.
+const MOTION_HISTORY: usize = 3;
+
+/// How a frame was tracked.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TrackingState {
+    /// No map yet (the first frame lacked depth).
+    NotInitialised,
+    Ok,
+    /// Found again after being lost (relocalisation), or for the first
+    /// time in a loaded map.
+    Relocalised,
+    Lost,
+    /// Not tracked: malformed input (buffers that do not match the size).
+    Skipped,
+}
+
+impl TrackingState {
+    /// The frame has a pose in the map.
+    pub fn is_tracked(self) -> bool {
+        matches!(self, Self::Ok | Self::Relocalised)
+    }
+}
+
+/// A frame's pose, its inliers and, per keypoint, the map point it was
+/// matched to (inliers only).
+pub(crate) struct Tracked {
+    pub state: TrackingState,
+    /// Camera from world.
+    pub pose_cw: Isometry3<f64>,
+    pub inliers: usize,
+    pub matched: Vec<Option<usize>>,
+}
+
+/// The tracking thread's state: the motion model, the reference keyframe's
+/// strength and what the last frame matched.
+pub struct Tracking {
+    pub(crate) camera: Camera,
+    pub(crate) params: SlamParams,
+    /// Camera from world of the last tracked frame, and the motion since the one before.
+    last_pose: Option<Isometry3<f64>>,
+    velocity: Option<Isometry3<f64>>,
+    /// Timestamp and pose (camera from world) of the last tracked frames,
+    /// oldest first, at most `MOTION_HISTORY` (cleared when lost): the
+    /// rolling-shutter correction's motion estimate.
+    pub(crate) recent: Vec<(f64, Isometry3<f64>)>,
+    /// Map points the last tracked frame matched (seeds the local map).
+    last_matched: Vec<usize>,
+    frames_since_keyframe: u32,
+    /// Inliers of the frame that made the last keyframe.
+    reference_inliers: usize,
+    pub(crate) lost: bool,
+}
+
+impl Tracking {
+    pub fn new(camera: Camera, params: SlamParams) -> Self {
+        Self {
+            camera,
+            params,
+            last_pose: None,
+            velocity: None,
+            recent: Vec::new(),
+            last_matched: Vec::new(),
+            frames_since_keyframe: 0,
+            reference_inliers: 0,
+            lost: false,
+        }
+    }
+
+    /// Nothing tracked yet: the next frame initialises (or, in a loaded
+    /// map, relocalises).
+    pub fn reset(&mut self) {
+        *self = Self::new(self.camera, self.params);
+    }
+
+    /// Starts lost in an existing map: the next frames relocalise.
+    pub fn start_lost(&mut self) {
+        self.reset();
+        self.lost = true;
+    }
+
+    /// Camera from world of the last tracked frame.
+    pub fn last_pose(&self) -> Option<Isometry3<f64>> {
+        self.last_pose
+    }
+
+    /// Local bundle adjustment moved the newest keyframe, which is the last
+    /// tracked frame: tracking goes on from its adjusted pose.
+    pub fn adopt_adjusted_pose(&mut self, pose_cw: Isometry3<f64>) {
+        self.last_pose = Some(pose_cw);
+    }
+
+    /// Tracks `frame` against `map` (which has at least one keyframe).
+    pub(crate) fn track(&mut self, map: &mut Map, frame: &Frame) -> Tracked {
+        let local = self.local_points(map);
+        if let Some(last) = self.last_pose.filter(|_| !self.lost) {
+            let predicted = self.velocity.map_or(last, |v| renormalized(&(v * last)));
+            for (start, radius) in [(predicted, 15.0), (last, 30.0)] {
+                if let Some(t) = self.track_from(map, frame, &local, &start, radius) {
+                    return Tracked {
+                        state: TrackingState::Ok,
+                        ..t
+                    };
+                }
+            }
+        }
+        let lost = |pose_cw| Tracked {
+            state: TrackingState::Lost,
+            pose_cw,
+            inliers: 0,
+            matched: Vec::new(),
+        };
+        match self.relocalise(map, frame) {
+            Some(start) => {
+                let everything: Vec<usize> = map.live_points().map(|(p, _)| p).collect();
+                match self.track_from(map, frame, &everything, &start, 10.0) {
+                    Some(t) => Tracked {
+                        state: TrackingState::Relocalised,
+                        ..t
+                    },
+                    None => lost(start),
+                }
+            }
+            None => lost(self.last_pose.unwrap_or_else(Isometry3::identity)),
+        }
+    }
+
+    /// Two passes of match-by-projection and pose optimisation: wide from
+    /// `start`, then narrow from the first estimate.
+    fn track_from(
+        &self,
+        map: &mut Map,
+        frame: &Frame,
+        local: &[usize],
+        start: &Isometry3<f64>,
+        radius: f64,
+    ) -> Option<Tracked> {
+        let mut pose = *start;
+        let mut matched = Vec::new();
+        let mut n = 0;
+        for (pass, r) in [radius, 6.0].into_iter().enumerate() {
+            let search = ProjectionSearch {
+                pose,
+                radius: r,
+                min_depth_m: self.params.min_depth_m,
+                count_visible: pass == 1,
+            };
+            matched = match_by_projection(map, frame, &self.camera, local, &search);
+            let ids = matched_pairs(&matched);
+            if ids.len() < self.params.min_inliers {
+                return None;
+            }
+            let obs = self.observations(map, frame, &ids);
+            let (optimised, inlier) = optimize_pose(&self.camera, &pose, &obs);
+            n = inlier.iter().filter(|&&b| b).count();
+            let finite = is_finite_pose(&optimised);
+            if n < self.params.min_inliers || !finite {
+                return None;
+            }
+            pose = optimised;
+            for (j, &(k, p)) in ids.iter().enumerate() {
+                if !inlier[j] {
+                    matched[k] = None;
+                } else if pass == 1 {
+                    map.points[p].found += 1;
+                }
+            }
+        }
+        Some(Tracked {
+            state: TrackingState::Ok,
+            pose_cw: pose,
+            inliers: n,
+            matched,
+        })
+    }
+
+    /// Pose-optimisation measurements of keypoint k matched to map point p.
+    pub(crate) fn observations(
+        &self,
+        map: &Map,
+        frame: &Frame,
+        ids: &[(usize, usize)],
+    ) -> Vec<Observation> {
+        ids.iter()
+            .map(|&(k, p)| {
+                let m = frame.measure(k, &self.camera, self.params.close_depth_m);
+                Observation {
+                    world: map.points[p].position,
+                    u: m.u,
+                    v: m.v,
+                    ur: m.ur,
+                    info: m.info,
+                }
+            })
+            .collect()
+    }
+
+    /// A tracked frame moves the motion model on.
+    pub(crate) fn accept(&mut self, tracked: &Tracked, timestamp: f64) {
+        let pose_cw = tracked.pose_cw;
+        if let Some(last) = self.last_pose {
+            self.velocity = Some(renormalized(&(pose_cw * last.inverse())));
+        }
+        self.last_pose = Some(pose_cw);
+        self.last_matched = tracked.matched.iter().flatten().copied().collect();
+        if self.recent.len() == MOTION_HISTORY {
+            self.recent.remove(0);
+        }
+        self.recent.push((timestamp, pose_cw));
+        self.lost = false;
+    }
+
+    /// A frame that could not be tracked: the motion model is stale.
+    pub(crate) fn mark_lost(&mut self) {
+        self.lost = true;
+        self.velocity = None;
+        self.recent.clear();
+    }
+
+    /// The frame (tracked, not made a keyframe) counts towards the next
+    /// keyframe.
+    pub(crate) fn count_frame(&mut self) {
+        self.frames_since_keyframe += 1;
+    }
+
+    /// ORB-SLAM2 (RGB-D): many close points not yet in the map, or too few
+    /// tracked against the reference keyframe, or too long since the last.
+    pub(crate) fn need_keyframe(&self, tracked: &Tracked, frame: &Frame) -> bool {
+        let (mut close_tracked, mut close_untracked) = (0, 0);
+        for (m, d) in tracked.matched.iter().zip(&frame.depth) {
+            if d.is_some_and(|d| d < self.params.close_depth_m) {
+                match m {
+                    Some(_) => close_tracked += 1,
+                    None => close_untracked += 1,
+                }
+            }
+        }
+        let inliers = tracked.inliers;
+        let long = self.keyframe_due();
+        let weak = (inliers as f64) < 0.75 * self.reference_inliers as f64
+            || (close_tracked < 100 && close_untracked > 70);
+        (long || weak) && inliers > 15
+    }
+
+    /// The routing hint: the next frame should become a keyframe (lost,
+    /// due, or weakening against the reference keyframe).
+    pub(crate) fn next_needs_keyframe(&self, inliers: usize) -> bool {
+        self.lost || self.keyframe_due() || (inliers as f64) < 0.85 * self.reference_inliers as f64
+    }
+
+    /// Localization mode's routing hint (no keyframes come): fresh masks
+    /// when lost and at the keyframe cadence.
+    pub(crate) fn refresh_due(&mut self) -> bool {
+        if self.lost {
+            return true;
+        }
+        let due = self.keyframe_due();
+        if due {
+            self.frames_since_keyframe = 0;
+        }
+        due
+    }
+
+    /// The next frame reaches the longest allowed gap between keyframes.
+    fn keyframe_due(&self) -> bool {
+        self.frames_since_keyframe + 1 >= self.params.max_frames_between_keyframes
+    }
+
+    /// Makes `frame` (tracked at `pose_cw`) a keyframe of `map`: matched
+    /// keypoints observe their points, unmatched ones with depth make new
+    /// points, the rest stay spare for triangulation. Returns its id.
+    pub(crate) fn insert_keyframe(
+        &mut self,
+        map: &mut Map,
+        frame: &Frame,
+        pose_cw: &Isometry3<f64>,
+        matched: &[Option<usize>],
+        inliers: usize,
+    ) -> usize {
+        let pose_wc = pose_cw.inverse();
+        let mut observed = Vec::new();
+        let mut measurements = Vec::new();
+        let mut spare = Vec::new();
+        for k in 0..frame.kps.len() {
+            let m = frame.measure(k, &self.camera, self.params.close_depth_m);
+            if let Some(p) = matched.get(k).copied().flatten() {
+                observed.push(p);
+                measurements.push(m);
+            } else if let Some(d) = frame.depth[k] {
+                let (u, v) = frame.un[k];
+                let seen = self.camera.unproject(u, v, d);
+                let world = pose_wc * Point3::from(seen);
+                let id = map.keyframes.len();
+                let point = MapPoint::new(world.coords, id, &m, seen.norm(), frame.colours[k]);
+                observed.push(map.add_point(point));
+                measurements.push(m);
+            } else {
+                spare.push(SpareKeypoint {
+                    measurement: m,
+                    colour: frame.colours[k],
+                });
+            }
+        }
+        self.frames_since_keyframe = 0;
+        self.reference_inliers = inliers.max(1);
+        map.add_keyframe(KeyFrame {
+            pose_cw: *pose_cw,
+            points: observed,
+            measurements,
+            spare,
+            bounds: frame.bounds,
+            // Local mapping connects it.
+            covisible: Vec::new(),
+            parent: None,
+            culled: false,
+        })
+    }
+}

@@ -1,0 +1,48 @@
+//! Between the pipeline's configuration and wire types and the SLAM core's
+//! own (the core knows nothing of either).
+
+use pipeline::config::{CameraConfig, PipelineConfig};
+use shared_types::{TrackCounts, TrackState};
+use slam_core::{Camera, FrameCounts, SlamParams, TrackingState};
+
+/// The core's camera for the configured one (depth in `depth_scale` units
+/// per metre).
+pub fn camera(c: &CameraConfig, depth_scale: f64) -> Camera {
+    Camera::new(
+        [c.fx, c.fy, c.cx, c.cy],
+        c.distortion,
+        depth_scale,
+        c.readout_s,
+    )
+}
+
+/// The core's parameters for a run's configuration.
+pub fn params(config: &PipelineConfig) -> SlamParams {
+    let mut params = SlamParams::default();
+    if let Some(t) = config.services.slam.threads {
+        params.orb.threads = t.max(1);
+    }
+    params
+}
+
+pub fn track_state(s: TrackingState) -> TrackState {
+    match s {
+        TrackingState::NotInitialised => TrackState::NotInitialised,
+        TrackingState::Ok => TrackState::Ok,
+        TrackingState::Relocalised => TrackState::Relocalised,
+        TrackingState::Lost => TrackState::Lost,
+        TrackingState::Skipped => TrackState::Skipped,
+    }
+}
+
+pub fn counts(c: &FrameCounts) -> TrackCounts {
+    TrackCounts {
+        features: c.features,
+        features_masked: c.features_masked,
+        inliers: c.inliers,
+        map_points: c.map_points,
+        keyframes: c.keyframes,
+        extract_us: c.extract_us,
+        mapping_us: c.mapping_us,
+    }
+}

@@ -328,6 +328,7 @@ impl Default for ServicesConfig {
                 keyframe_every: 5,
                 threads: Some(2),
                 mask_mode: "filter".into(),
+                checkpoint_every_keyframes: Some(1),
                 ..ServiceConfig::default()
             },
         }
@@ -382,6 +383,17 @@ pub struct ServiceConfig {
     /// SAM 2 propagator: positive points sampled inside an object's mask
     /// for each prompt (besides its box).
     pub prompt_points: Option<u32>,
+    /// SLAM: write the map as a checkpoint into the run folder every this
+    /// many keyframes (and at stop; 0: only at stop). A restarted SLAM
+    /// service goes on from it in the same world frame.
+    pub checkpoint_every_keyframes: Option<u64>,
+    /// SLAM: start from this map file (poses in its world frame).
+    pub load_map: Option<PathBuf>,
+    /// SLAM: write the map to this file at the end of the run.
+    pub save_map: Option<PathBuf>,
+    /// SLAM: ORB-SLAM2's localization mode: track against the loaded map,
+    /// add no keyframe or point (needs `load_map`).
+    pub localize_only: bool,
 }
 
 /// A configuration error that names the file, the key path and the problem.
@@ -543,6 +555,15 @@ impl PipelineConfig {
                 "key `services.slam.mask_mode`: '{}' is not one of filter, blackout",
                 self.services.slam.mask_mode
             ));
+        }
+        let slam = &self.services.slam;
+        if let Some(n) = slam.checkpoint_every_keyframes.filter(|&n| n > 100_000) {
+            return Err(format!(
+                "key `services.slam.checkpoint_every_keyframes`: {n} is not a keyframe count (0 = only at stop ..= 100000)"
+            ));
+        }
+        if slam.localize_only && slam.load_map.is_none() {
+            return Err("key `services.slam.localize_only`: localization needs a map: set services.slam.load_map (or give --load-map)".into());
         }
         self.camera
             .validate()
@@ -781,6 +802,9 @@ mod tests {
             svc.min_predicted_iou = Some(0.5);
             svc.min_area_ratio = Some(0.2);
             svc.prompt_points = Some(3);
+            svc.checkpoint_every_keyframes = Some(5);
+            svc.load_map = Some("/x".into());
+            svc.save_map = Some("/x".into());
         }
         let mut keys = Vec::new();
         leaf_keys(&toml::Table::try_from(&full).unwrap(), "", &mut keys);

@@ -155,9 +155,11 @@ impl System {
     }
 
     /// Writes the map to `path` now (atomically: a temporary file, synced,
-    /// renamed), waiting for local mapping first.
+    /// renamed), waiting for local mapping and the checkpoint writer first
+    /// (which stops: this is the end of the run's map).
     pub fn save_map(&mut self, path: &std::path::Path) -> Result<(), MapFileError> {
         self.settle();
+        self.checkpointer = None;
         MapFile::new(self.camera, &self.params, self.map.clone()).write(path)
     }
 
@@ -279,6 +281,11 @@ impl System {
         };
         if keyframe_inserted {
             self.keyframes_inserted += 1;
+            if initialising {
+                if let Some(c) = &self.checkpointer {
+                    c.write_now(&self.map);
+                }
+            }
             self.start_mapping(self.map.keyframes.len() - 1);
         }
         counts.mapping_us = (self.mapping_ms * 1e3) as u32;

@@ -23,7 +23,7 @@ use shared_types::{
     frame_flags, mask_flags, FrameHeader, MasksHeader, Route, RouteKind, ServiceKind, StageStamps,
     Track, TrackState,
 };
-use slam::rgbd_tracker::RgbdTracker;
+use slam::rgbd_tracker::{MapFiles, RgbdTracker};
 use slam::scripted::ScriptedTracker;
 use slam::tracker::{TrackInput, Tracker};
 use slam_core::io::ply::write_ply;
@@ -36,17 +36,25 @@ struct Args {
     /// Write the map here (PLY) when the service is stopped.
     #[arg(long)]
     map_out: Option<std::path::PathBuf>,
+    /// The run's map checkpoint: gone on from if it exists, written every
+    /// `services.slam.checkpoint_every_keyframes` keyframes and at stop.
+    #[arg(long)]
+    checkpoint: Option<std::path::PathBuf>,
 }
 
 fn main() -> ExitCode {
     let args = Args::parse();
     let map_out = args.map_out.clone();
+    let checkpoint = args.checkpoint.clone();
     run_service(ServiceKind::Slam, &args.service, move |ctx| {
-        run(ctx, map_out.as_deref())
+        run(ctx, map_out.as_deref(), checkpoint)
     })
 }
 
-fn tracker_from_config(ctx: &ServiceContext) -> Result<Box<dyn Tracker>> {
+fn tracker_from_config(
+    ctx: &ServiceContext,
+    checkpoint: Option<std::path::PathBuf>,
+) -> Result<Box<dyn Tracker>> {
     let cfg = &ctx.config.services.slam;
     match cfg.backend.as_str() {
         "scripted" => Ok(Box::new(ScriptedTracker::new(
@@ -58,7 +66,16 @@ fn tracker_from_config(ctx: &ServiceContext) -> Result<Box<dyn Tracker>> {
             Duration::from_millis(cfg.work_ms),
             cfg.seen_log.clone(),
         ))),
-        "orb-rgbd" => Ok(Box::new(RgbdTracker::new(&ctx.config))),
+        "orb-rgbd" => {
+            let files = MapFiles {
+                checkpoint,
+                load: cfg.load_map.clone(),
+                save: cfg.save_map.clone(),
+            };
+            let tracker =
+                RgbdTracker::new(&ctx.config, &files).map_err(|e| InputError(e.to_string()))?;
+            Ok(Box::new(tracker))
+        }
         other => Err(InputError(format!(
             "key `services.slam.backend`: unknown backend '{other}' (known: orb-rgbd, scripted)"
         ))
@@ -82,8 +99,12 @@ struct State {
     last: Option<Track>,
 }
 
-fn run(ctx: ServiceContext, map_out: Option<&std::path::Path>) -> Result<()> {
-    let mut tracker = tracker_from_config(&ctx)?;
+fn run(
+    ctx: ServiceContext,
+    map_out: Option<&std::path::Path>,
+    checkpoint: Option<std::path::PathBuf>,
+) -> Result<()> {
+    let mut tracker = tracker_from_config(&ctx, checkpoint)?;
     let frames = ctx.transport.slice_receiver::<FrameHeader>(Topic::Frames)?;
     let masks = ctx.transport.slice_receiver::<MasksHeader>(Topic::Masks)?;
     let routes = ctx.transport.receiver::<Route>(Topic::Routes)?;
@@ -106,6 +127,7 @@ fn run(ctx: ServiceContext, map_out: Option<&std::path::Path>) -> Result<()> {
     };
     loop {
         if wait(&ws, Duration::from_secs(1))? == Wake::Terminate {
+            tracker.finish().map_err(anyhow::Error::msg)?;
             if let Some(path) = map_out {
                 let points = tracker.map_points();
                 write_ply(path, &points).map_err(|e| {

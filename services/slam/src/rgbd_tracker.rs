@@ -1,10 +1,13 @@
 //! The `orb-rgbd` backend of the SLAM service: the SLAM core
 //! ([`slam_core::System`]) behind the service's [`Tracker`] seam.
 
+use std::path::{Path, PathBuf};
+
 use pipeline::config::PipelineConfig;
 use shared_types::TrackState;
 use slam_core::io::ply::ColouredPoint;
-use slam_core::System;
+use slam_core::local_mapping::checkpoint::CheckpointPolicy;
+use slam_core::{Camera, MapFile, MapFileError, SlamParams, System};
 
 use crate::convert;
 use crate::tracker::{TrackInput, TrackOutcome, Tracker};
@@ -18,17 +21,85 @@ pub struct RgbdTracker {
     blackout: bool,
     /// The painted copy of the frame in blackout mode.
     painted: Vec<u8>,
+    /// The checkpoint written at stop (None in localization mode: the map
+    /// does not change), and the map file asked for.
+    checkpoint: Option<PathBuf>,
+    save: Option<PathBuf>,
+}
+
+/// Where the map comes from and goes to.
+#[derive(Debug, Clone, Default)]
+pub struct MapFiles {
+    /// The run's checkpoint: loaded if it exists (a restart goes on in the
+    /// same world frame), written every N keyframes and at stop.
+    pub checkpoint: Option<PathBuf>,
+    /// A map to start in when there is no checkpoint yet.
+    pub load: Option<PathBuf>,
+    /// Written at stop.
+    pub save: Option<PathBuf>,
+}
+
+/// Reads a map file and checks it fits this camera and pyramid.
+fn read_map(path: &Path, camera: &Camera, params: &SlamParams) -> Result<MapFile, MapFileError> {
+    let file = MapFile::read(path)?;
+    file.check_compatible(camera, params)
+        .map_err(|problem| MapFileError {
+            path: path.to_path_buf(),
+            problem,
+        })?;
+    Ok(file)
 }
 
 impl RgbdTracker {
-    pub fn new(config: &PipelineConfig) -> Self {
+    /// The tracker for `config`, starting in the checkpoint when there is
+    /// one, else in `files.load`, else in an empty map. A map file that
+    /// cannot be used is an error naming it (never an empty map instead:
+    /// that would be a new world frame).
+    pub fn new(config: &PipelineConfig, files: &MapFiles) -> Result<Self, MapFileError> {
         let camera = convert::camera(&config.camera, config.source.depth_scale as f64);
-        Self {
-            system: System::new(convert::params(config), camera),
-            depth: Vec::new(),
-            blackout: config.services.slam.mask_mode == "blackout",
-            painted: Vec::new(),
+        let params = convert::params(config);
+        let slam = &config.services.slam;
+        if let Some(c) = &files.checkpoint {
+            MapFile::remove_stale_temporaries(c);
         }
+        let start = files
+            .checkpoint
+            .as_ref()
+            .filter(|p| p.exists())
+            .map(|p| (p, "checkpoint"))
+            .or(files.load.as_ref().map(|p| (p, "map")));
+        let mut system = match start {
+            Some((path, what)) => {
+                let file = read_map(path, &camera, &params)?;
+                tracing::info!(
+                    keyframes = file.map.live_keyframes().count(),
+                    points = file.map.live_point_count(),
+                    "going on in the {what} {}: the first frames relocalise",
+                    path.display()
+                );
+                System::with_map(params, camera, file)
+            }
+            None => System::new(params, camera),
+        };
+        system.set_localize_only(slam.localize_only);
+        let checkpoint = files.checkpoint.clone().filter(|_| !slam.localize_only);
+        if let Some(path) = &checkpoint {
+            let every = slam.checkpoint_every_keyframes.unwrap_or(0) as usize;
+            if every > 0 {
+                system.set_checkpoint(Some(CheckpointPolicy {
+                    path: path.clone(),
+                    every_keyframes: every,
+                }));
+            }
+        }
+        Ok(Self {
+            system,
+            depth: Vec::new(),
+            blackout: slam.mask_mode == "blackout",
+            painted: Vec::new(),
+            checkpoint,
+            save: files.save.clone(),
+        })
     }
 }
 
@@ -78,6 +149,14 @@ impl Tracker for RgbdTracker {
                 || convert::track_state(r.state) == TrackState::Lost,
             counts: convert::counts(&r.counts),
         }
+    }
+
+    fn finish(&mut self) -> Result<(), String> {
+        for path in self.checkpoint.iter().chain(&self.save) {
+            self.system.save_map(path).map_err(|e| e.to_string())?;
+            tracing::info!("map written to {}", path.display());
+        }
+        Ok(())
     }
 
     fn map_points(&mut self) -> Vec<ColouredPoint> {

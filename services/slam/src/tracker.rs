@@ -34,6 +34,11 @@ pub struct TrackOutcome {
 pub trait Tracker {
     fn name(&self) -> &str;
     fn track(&mut self, input: &TrackInput) -> TrackOutcome;
+    /// At stop: writes what the tracker keeps (map files); the error names
+    /// the file.
+    fn finish(&mut self) -> Result<(), String> {
+        Ok(())
+    }
     /// The map's points (empty for trackers without a map).
     fn map_points(&mut self) -> Vec<slam_core::io::ply::ColouredPoint> {
         Vec::new()

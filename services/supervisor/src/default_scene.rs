@@ -7,7 +7,6 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use pipeline::config::PipelineConfig;
 use scenes::room::{default_scene, RoomOptions};
-use slam_core::Camera;
 
 /// Bump when the renderer or the default walks change, so old renders are
 /// not reused.
@@ -30,13 +29,7 @@ pub fn ensure(output_dir: &Path, cfg: &PipelineConfig) -> Result<PathBuf> {
             "no dataset given: rendering the embedded default scene (a room, a moving camera, two people walking) into {}",
             dir.display()
         );
-        let c = &cfg.camera;
-        let camera = Camera::new(
-            [c.fx, c.fy, c.cx, c.cy],
-            c.distortion,
-            cfg.source.depth_scale as f64,
-            c.readout_s,
-        );
+        let camera = slam::convert::camera(&cfg.camera, cfg.source.depth_scale as f64);
         // 640x480, the frame size the configured intrinsics are for.
         let (_, summary) = default_scene(&dir, &camera, &RoomOptions::default())
             .with_context(|| format!("cannot render the default scene into {}", dir.display()))?;

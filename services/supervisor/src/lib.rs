@@ -6,6 +6,7 @@ pub mod ablation;
 pub mod children;
 pub mod default_scene;
 pub mod latency;
+pub mod map_files;
 pub mod mask_eval;
 pub mod mask_record;
 pub mod outputs;

@@ -53,6 +53,17 @@ enum Command {
         /// worker is given up on (`run.require_masks`).
         #[arg(long)]
         require_masks: bool,
+        /// Start in this saved map: poses come out in its world frame (the
+        /// first frames relocalise against its keyframes).
+        #[arg(long)]
+        load_map: Option<PathBuf>,
+        /// Write the SLAM map to this file at the end of the run.
+        #[arg(long)]
+        save_map: Option<PathBuf>,
+        /// ORB-SLAM2's localization mode: track in the loaded map, add no
+        /// keyframe or point (needs --load-map).
+        #[arg(long)]
+        localize_only: bool,
         /// Where the run folder is created (default: `run.output_dir`).
         #[arg(long)]
         output_dir: Option<PathBuf>,
@@ -229,6 +240,9 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             config,
             camera,
             require_masks,
+            load_map,
+            save_map,
+            localize_only,
             output_dir,
             mode,
             no_masks,
@@ -236,6 +250,10 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             run_id,
         } => {
             let mut cfg = load_config(config.as_deref())?;
+            let slam = &mut cfg.services.slam;
+            slam.load_map = load_map.or(slam.load_map.take());
+            slam.save_map = save_map.or(slam.save_map.take());
+            slam.localize_only |= localize_only;
             if let Some(d) = dataset {
                 cfg.source.path = d;
             }
@@ -293,6 +311,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             }
             // Presets and camera files are validated as they are read.
             cfg.camera = choice.camera.clone();
+            supervisor::map_files::prepare(&mut cfg)?;
             let id = match run_id {
                 Some(id) => id,
                 None => run_dir::new_run_id(),

@@ -276,18 +276,38 @@ pub fn write(
     )?;
     writeln!(md, "## Trajectory\n")?;
     writeln!(md, "{WORLD_FRAME}\n")?;
-    let restarts = crate::run_dir::slam_restarts_at(run_dir);
-    if !restarts.is_empty() && config.services.slam.backend == "orb-rgbd" {
-        writeln!(
-            md,
-            "**Several world frames:** the SLAM service started again with an empty map at frame{} {} (a restart after it died, or `dynslam resume`). Each start begins a new world frame at that frame's camera, so the poses before and after are not in one frame and the ATE below mixes them.\n",
-            if restarts.len() > 1 { "s" } else { "" },
-            restarts
+    let starts = crate::run_dir::slam_starts(run_dir);
+    if config.services.slam.backend == "orb-rgbd" {
+        let list = |from_checkpoint: bool| {
+            starts
                 .iter()
-                .map(|s| s.to_string())
+                .filter(|s| s.from_checkpoint == from_checkpoint)
+                .map(|s| s.next_seq.to_string())
                 .collect::<Vec<_>>()
-                .join(", ")
-        )?;
+        };
+        let (resumed, empty) = (list(true), list(false));
+        if !resumed.is_empty() {
+            let lost: Vec<String> = starts
+                .iter()
+                .filter(|s| s.from_checkpoint)
+                .map(|s| format!("{} at frame {}", lost_after(rows, s.next_seq), s.next_seq))
+                .collect();
+            writeln!(
+                md,
+                "The SLAM service started again at frame{} {} and went on from its map checkpoint, in the same world frame (frames lost before it relocalised: {}).\n",
+                if resumed.len() > 1 { "s" } else { "" },
+                resumed.join(", "),
+                lost.join(", ")
+            )?;
+        }
+        if !empty.is_empty() {
+            writeln!(
+                md,
+                "**Several world frames:** the SLAM service started again with an empty map (no checkpoint yet) at frame{} {}. Each such start begins a new world frame at that frame's camera, so the poses before and after are not in one frame and the ATE below mixes them.\n",
+                if empty.len() > 1 { "s" } else { "" },
+                empty.join(", ")
+            )?;
+        }
     }
     match &eval {
         Some(e) => {
@@ -587,4 +607,12 @@ fn rgb_of(c: RGBColor) -> Rgb<u8> {
 /// Path of the report of a run folder.
 pub fn report_path(run_dir: &Path) -> PathBuf {
     run_dir.join(REPORT_FILE)
+}
+
+/// Frames from `from` on that were not tracked before the first tracked one
+/// (what a restarted SLAM lost before relocalising).
+pub fn lost_after(rows: &[FrameRow], from: u64) -> usize {
+    let mut after: Vec<&FrameRow> = rows.iter().filter(|r| r.seq >= from).collect();
+    after.sort_unstable_by_key(|r| r.seq);
+    after.iter().take_while(|r| !r.is_tracked()).count()
 }

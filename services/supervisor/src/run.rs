@@ -201,6 +201,20 @@ impl Supervisor {
         if kind == ServiceKind::Slam {
             args.push("--map-out".into());
             args.push(run_dir.join(MAP_FILE).to_string_lossy().into_owned());
+            args.push("--checkpoint".into());
+            let checkpoint = run_dir.join(crate::map_files::CHECKPOINT_FILE);
+            args.push(checkpoint.to_string_lossy().into_owned());
+            if self.next_seq > 0 {
+                // A restart (or a resume): does it go on in the map?
+                let from = if checkpoint.is_file() {
+                    "checkpoint"
+                } else {
+                    "empty"
+                };
+                if let Err(e) = run_dir::log_slam_start(&run_dir, self.next_seq, from) {
+                    tracing::warn!("cannot record the SLAM start: {e:#}");
+                }
+            }
         }
         let svc = self.svc(kind);
         let program = svc.program.clone();
@@ -655,10 +669,16 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
         router.resume(last.next_keyframe, last_segment);
         tracing::info!(frames = old_rows.len(), "resuming run {}", info.run_id);
         if config.services.slam.backend == "orb-rgbd" {
-            tracing::warn!(
-                "the resumed SLAM starts with an empty map: poses from frame {} on are in a new world frame (the report says so)",
-                last.seq + 1
-            );
+            match crate::map_files::checkpoint(&run_dir) {
+                Some(c) => tracing::info!(
+                    "the resumed SLAM goes on from its checkpoint {} in the same world frame",
+                    c.display()
+                ),
+                None => tracing::warn!(
+                    "no map checkpoint in the run folder: the resumed SLAM starts an empty map, poses from frame {} on are in a new world frame (the report says so)",
+                    last.seq + 1
+                ),
+            }
         }
         run_dir::log_resume(&run_dir, last.seq + 1)?;
     }

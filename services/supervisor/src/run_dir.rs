@@ -13,6 +13,8 @@ pub const STATUS_FILE: &str = "status.json";
 pub const RESTARTS_FILE: &str = "restarts.log";
 /// One line per `dynslam resume` of the run: `next_seq N`.
 pub const RESUMES_FILE: &str = "resumes.log";
+/// One line per start of the SLAM service after the first frame.
+pub const SLAM_STARTS_FILE: &str = "slam-starts.log";
 
 /// Identity of a run, written once at its start.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -189,26 +191,42 @@ pub fn log_resume(dir: &Path, next_seq: u64) -> Result<()> {
     append_line(dir, RESUMES_FILE, &format!("next_seq {next_seq}"))
 }
 
-/// The frames at which the SLAM service started again with an empty map:
-/// its restarts (`restarts.log`) and the run's resumes (`resumes.log`).
-pub fn slam_restarts_at(dir: &Path) -> Vec<u64> {
-    let seqs = |file: &str, service: Option<&str>| -> Vec<u64> {
-        std::fs::read_to_string(dir.join(file))
-            .unwrap_or_default()
-            .lines()
-            .filter(|l| service.is_none_or(|s| l.starts_with(&format!("{s} "))))
-            .filter_map(|l| {
-                let mut words = l.split_whitespace();
-                words.position(|w| w == "next_seq")?;
-                words.next()?.parse().ok()
+/// Records that the SLAM service started again (a restart or a resume) at
+/// frame `next_seq`, going on from its map checkpoint or with an empty map.
+pub fn log_slam_start(dir: &Path, next_seq: u64, from: &str) -> Result<()> {
+    append_line(
+        dir,
+        SLAM_STARTS_FILE,
+        &format!("next_seq {next_seq} from {from}"),
+    )
+}
+
+/// A start of the SLAM service after the run's first frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SlamStart {
+    /// The first frame it was given.
+    pub next_seq: u64,
+    /// It went on from the map checkpoint (same world frame); else an
+    /// empty map (a new world frame).
+    pub from_checkpoint: bool,
+}
+
+/// The SLAM service's starts after the first frame, in order.
+pub fn slam_starts(dir: &Path) -> Vec<SlamStart> {
+    std::fs::read_to_string(dir.join(SLAM_STARTS_FILE))
+        .unwrap_or_default()
+        .lines()
+        .filter_map(|l| {
+            let mut words = l.split_whitespace();
+            words.position(|w| w == "next_seq")?;
+            let next_seq = words.next()?.parse().ok()?;
+            words.position(|w| w == "from")?;
+            Some(SlamStart {
+                next_seq,
+                from_checkpoint: words.next()? == "checkpoint",
             })
-            .collect()
-    };
-    let mut at = seqs(RESTARTS_FILE, Some("slam"));
-    at.extend(seqs(RESUMES_FILE, None));
-    at.sort_unstable();
-    at.dedup();
-    at
+        })
+        .collect()
 }
 
 pub fn restart_count(dir: &Path) -> u64 {
@@ -255,8 +273,17 @@ mod tests {
         log_restart(&dir, "segmenter pid 7 killed by signal 9 next_seq 12").unwrap();
         log_restart(&dir, "slam pid 8 killed by signal 9 next_seq 40").unwrap();
         assert_eq!(restart_count(&dir), 2);
-        log_resume(&dir, 25).unwrap();
-        assert_eq!(slam_restarts_at(&dir), vec![25, 40]);
+        log_slam_start(&dir, 25, "empty").unwrap();
+        log_slam_start(&dir, 40, "checkpoint").unwrap();
+        let starts = slam_starts(&dir);
+        assert_eq!(
+            starts.iter().map(|s| s.next_seq).collect::<Vec<_>>(),
+            [25, 40]
+        );
+        assert_eq!(
+            starts.iter().map(|s| s.from_checkpoint).collect::<Vec<_>>(),
+            [false, true]
+        );
         std::fs::remove_dir_all(&base).ok();
     }
 }

@@ -26,6 +26,16 @@ pub const MAGIC: &[u8; 8] = b"DSLAMMAP";
 pub const VERSION: u32 = 1;
 const HEADER: usize = 8 + 4 + 8 + 4;
 
+/// A temporary name beside `path`, unique per process and write (two
+/// writers of one file never share a temporary).
+fn temporary_path(path: &Path) -> PathBuf {
+    static WRITES: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let n = WRITES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(format!(".{}.{n}.tmp", std::process::id()));
+    PathBuf::from(tmp)
+}
+
 /// A map and what it was made with.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MapFile {
@@ -161,9 +171,7 @@ impl MapFile {
             problem,
         };
         let bytes = self.encode().map_err(named)?;
-        let mut tmp = path.as_os_str().to_owned();
-        tmp.push(".tmp");
-        let tmp = PathBuf::from(tmp);
+        let tmp = temporary_path(path);
         let written = (|| -> std::io::Result<()> {
             let mut f = std::fs::File::create(&tmp)?;
             f.write_all(&bytes)?;
@@ -181,6 +189,25 @@ impl MapFile {
             let _ = std::fs::remove_file(&tmp);
             named(MapFileProblem::Io(e.to_string()))
         })
+    }
+
+    /// Removes temporary files a killed writer of `path` left behind.
+    pub fn remove_stale_temporaries(path: &Path) {
+        let (Some(dir), Some(name)) = (path.parent(), path.file_name()) else {
+            return;
+        };
+        let prefix = format!("{}.", name.to_string_lossy());
+        let dir = if dir.as_os_str().is_empty() {
+            Path::new(".")
+        } else {
+            dir
+        };
+        for entry in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+            let n = entry.file_name().to_string_lossy().into_owned();
+            if n.starts_with(&prefix) && n.ends_with(".tmp") {
+                let _ = std::fs::remove_file(entry.path());
+            }
+        }
     }
 
     /// The map can be tracked in with `camera` and `params`: the same

@@ -3,6 +3,8 @@
 //! writer thread encodes it and replaces the checkpoint file atomically
 //! (temporary file, fsync, rename). A copy that arrives while the writer is
 //! still busy with the previous one is not taken: the next one will be.
+//! The map of the first keyframe is written at once, so that a restart
+//! always finds the world frame it must go on in.
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -55,6 +57,9 @@ impl CheckpointSender {
 
 /// The checkpoint writer thread.
 pub struct Checkpointer {
+    path: PathBuf,
+    camera: Camera,
+    params: SlamParams,
     every_keyframes: usize,
     sender: Option<CheckpointSender>,
     stats: Arc<CheckpointStats>,
@@ -95,6 +100,9 @@ impl Checkpointer {
                 }
             })?;
         Ok(Self {
+            path: policy.path,
+            camera,
+            params,
             every_keyframes: policy.every_keyframes.max(1),
             sender: Some(CheckpointSender {
                 to_writer,
@@ -104,6 +112,20 @@ impl Checkpointer {
             stats,
             worker: Some(worker),
         })
+    }
+
+    /// Writes `map` now, on the caller's thread (the first keyframe's map:
+    /// small, and from then on a restart always finds a checkpoint).
+    pub fn write_now(&self, map: &Map) {
+        match MapFile::new(self.camera, &self.params, map.clone()).write(&self.path) {
+            Ok(()) => {
+                self.stats.written.fetch_add(1, Ordering::Relaxed);
+            }
+            Err(e) => {
+                self.stats.failed.fetch_add(1, Ordering::Relaxed);
+                tracing::warn!("map checkpoint not written: {e}");
+            }
+        }
     }
 
     pub fn every_keyframes(&self) -> usize {

@@ -157,14 +157,25 @@ pub fn processes_mentioning(needle: &str) -> Vec<u32> {
 /// Makes a small TUM folder from the first `n` frames of the shared sequence
 /// (files copied, lists rewritten), to be damaged by a test.
 pub fn small_tum(dir: &Path, n: usize) -> PathBuf {
+    tum_slice(dir, "tum", 0, n)
+}
+
+/// A TUM folder `dir/name` of the shared frames `skip..skip + n` (by the
+/// shared association), with the ground truth.
+pub fn tum_slice(dir: &Path, name: &str, skip: usize, n: usize) -> PathBuf {
     let src = shared_tum();
-    let dst = dir.join("tum");
+    let dst = dir.join(name);
     std::fs::create_dir_all(dst.join("rgb")).unwrap();
     std::fs::create_dir_all(dst.join("depth")).unwrap();
     let assoc = std::fs::read_to_string(src.join("associations.txt")).unwrap();
     let mut rgb_txt = String::from("# color images\n");
     let mut depth_txt = String::from("# depth images\n");
-    for line in assoc.lines().filter(|l| !l.starts_with('#')).take(n) {
+    for line in assoc
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .skip(skip)
+        .take(n)
+    {
         let f: Vec<&str> = line.split_whitespace().collect();
         std::fs::copy(src.join(f[1]), dst.join(f[1])).unwrap();
         std::fs::copy(src.join(f[3]), dst.join(f[3])).unwrap();
@@ -173,6 +184,7 @@ pub fn small_tum(dir: &Path, n: usize) -> PathBuf {
     }
     std::fs::write(dst.join("rgb.txt"), rgb_txt).unwrap();
     std::fs::write(dst.join("depth.txt"), depth_txt).unwrap();
+    std::fs::copy(src.join("groundtruth.txt"), dst.join("groundtruth.txt")).unwrap();
     dst
 }
 

@@ -254,3 +254,178 @@ impl MapFile {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::map::{KeyFrame, KeyFrameObservation, MapPoint};
+    use crate::rng::SplitMix64;
+    use nalgebra::{Isometry3, Vector3};
+
+    /// Two keyframes sharing ten points, built through the mutation API.
+    fn small_map() -> Map {
+        let mut map = Map::default();
+        let m = |i: usize| KeyFrameObservation {
+            u: 100.0 + i as f64,
+            v: 50.0,
+            ur: Some(90.0),
+            info: 1.0,
+            descriptor: [i as u64; 4],
+        };
+        let ids: Vec<usize> = (0..10)
+            .map(|i| {
+                let p = MapPoint::new(Vector3::new(i as f64, 0.0, 2.0), 0, &m(i), 2.0, [1, 2, 3]);
+                map.add_point(p)
+            })
+            .collect();
+        for k in 0..2 {
+            map.add_keyframe(KeyFrame {
+                pose_cw: Isometry3::translation(0.1 * k as f64, 0.0, 0.0),
+                points: ids.clone(),
+                measurements: (0..10).map(m).collect(),
+                spare: Vec::new(),
+                bounds: (0.0, 640.0, 0.0, 480.0),
+                covisible: Vec::new(),
+                parent: None,
+                culled: false,
+            });
+        }
+        map.connect(1);
+        map.check_invariants().unwrap();
+        map
+    }
+
+    fn file() -> MapFile {
+        MapFile::new(Camera::tum_fr1(), &SlamParams::default(), small_map())
+    }
+
+    #[test]
+    fn a_map_survives_the_round_trip_through_a_file() {
+        let dir = std::env::temp_dir().join(format!("mapfile-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("a.map");
+        file().write(&path).unwrap();
+        let back = MapFile::read(&path).unwrap();
+        assert_eq!(back.camera, Camera::tum_fr1());
+        assert_eq!(back.map.keyframes.len(), 2);
+        assert_eq!(back.map.live_point_count(), 10);
+        assert_eq!(back.map.keyframes[1].covisible, vec![(0, 10)]);
+        assert_eq!(back.map.points[3].descriptor, [3; 4]);
+        back.check_compatible(&Camera::tum_fr1(), &SlamParams::default())
+            .unwrap();
+        // Nothing temporary left beside it.
+        assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn bad_files_are_named_with_their_problem() {
+        let bytes = file().encode().unwrap();
+        let problem = |b: &[u8]| MapFile::decode(b).unwrap_err();
+        // Truncated anywhere: the header's length says so.
+        assert!(matches!(
+            problem(&bytes[..bytes.len() - 7]),
+            MapFileProblem::Truncated { .. }
+        ));
+        assert!(matches!(
+            problem(&bytes[..15]),
+            MapFileProblem::Truncated { .. }
+        ));
+        // Another version.
+        let mut other = bytes.clone();
+        other[8..12].copy_from_slice(&7u32.to_le_bytes());
+        assert_eq!(
+            problem(&other),
+            MapFileProblem::Version {
+                found: 7,
+                supported: VERSION
+            }
+        );
+        // A flipped byte in the payload.
+        let mut flipped = bytes.clone();
+        let last = flipped.len() - 3;
+        flipped[last] ^= 0x40;
+        assert_eq!(problem(&flipped), MapFileProblem::Checksum);
+        // Something else entirely, and two files joined.
+        assert_eq!(
+            problem(b"ply\nformat ascii 1.0\n"),
+            MapFileProblem::NotAMapFile
+        );
+        assert_eq!(problem(b""), MapFileProblem::NotAMapFile);
+        let joined = [bytes.clone(), bytes.clone()].concat();
+        assert!(matches!(problem(&joined), MapFileProblem::TrailingBytes(_)));
+        // Decodes, but an id points nowhere: refused before use.
+        let mut broken = file();
+        broken.map.keyframes[0].points[0] = 99;
+        let err = problem(&broken.encode().unwrap());
+        assert!(
+            matches!(&err, MapFileProblem::Inconsistent(m) if m.contains("point 99")),
+            "{err}"
+        );
+        // The error names the file.
+        let missing = Path::new("/nonexistent/x.map");
+        let e = MapFile::read(missing).unwrap_err().to_string();
+        assert!(e.starts_with("map file /nonexistent/x.map: "), "{e}");
+    }
+
+    #[test]
+    fn another_camera_or_pyramid_is_refused() {
+        let f = file();
+        let mut camera = Camera::tum_fr1();
+        camera.fx = 525.0;
+        let e = f
+            .check_compatible(&camera, &SlamParams::default())
+            .unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("fx is 517.306408 in the map, 525 in this run"),
+            "{e}"
+        );
+        let mut camera = Camera::tum_fr1();
+        camera.depth_scale = 1000.0;
+        assert!(matches!(
+            f.check_compatible(&camera, &SlamParams::default()),
+            Err(MapFileProblem::Camera(_))
+        ));
+        let mut params = SlamParams::default();
+        params.orb.levels = 4;
+        assert!(matches!(
+            f.check_compatible(&Camera::tum_fr1(), &params),
+            Err(MapFileProblem::Pyramid(_))
+        ));
+    }
+
+    /// Cheap fuzzing: random bytes, and a valid file with random bytes
+    /// changed, truncated or extended (its checksum fixed so the decoder
+    /// and the invariant check see them), never panic.
+    #[test]
+    fn mangled_files_give_errors_not_panics() {
+        let bytes = file().encode().unwrap();
+        let mut rng = SplitMix64::new(17);
+        for i in 0..3000 {
+            let mut b = if i % 5 == 0 {
+                (0..rng.below(300)).map(|_| rng.below(256) as u8).collect()
+            } else {
+                bytes.clone()
+            };
+            for _ in 0..1 + rng.below(4) {
+                if b.is_empty() {
+                    break;
+                }
+                let at = rng.below(b.len());
+                match rng.below(3) {
+                    0 => b[at] = rng.below(256) as u8,
+                    1 => b.truncate(at.max(HEADER)),
+                    _ => b.insert(at, rng.below(256) as u8),
+                }
+            }
+            if i % 2 == 0 && b.len() >= HEADER && &b[..8] == MAGIC {
+                let payload = b[HEADER..].to_vec();
+                b[12..20].copy_from_slice(&(payload.len() as u64).to_le_bytes());
+                b[20..24].copy_from_slice(&crc32fast::hash(&payload).to_le_bytes());
+                b[8..12].copy_from_slice(&VERSION.to_le_bytes());
+            }
+            let _ = MapFile::decode(&b);
+        }
+    }
+}

@@ -436,3 +436,117 @@ impl Map {
         (all, parent)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn measurement(i: usize) -> KeyFrameObservation {
+        KeyFrameObservation {
+            u: i as f64,
+            v: 10.0,
+            ur: None,
+            info: 1.0,
+            descriptor: [i as u64; 4],
+        }
+    }
+
+    /// Keyframe seeing `points` (ids), not yet connected.
+    fn keyframe(points: &[usize]) -> KeyFrame {
+        KeyFrame {
+            pose_cw: Isometry3::identity(),
+            points: points.to_vec(),
+            measurements: points.iter().map(|&p| measurement(p)).collect(),
+            spare: Vec::new(),
+            bounds: (0.0, 640.0, 0.0, 480.0),
+            covisible: Vec::new(),
+            parent: None,
+            culled: false,
+        }
+    }
+
+    /// Three keyframes: 0 sees points 0..20, 1 sees 0..20 and 20..40, 2
+    /// sees 20..40.
+    fn three_keyframes() -> Map {
+        let mut map = Map::default();
+        for i in 0..40 {
+            let p = MapPoint::new(
+                Vector3::new(i as f64, 0.0, 3.0),
+                0,
+                &measurement(i),
+                3.0,
+                [0; 3],
+            );
+            assert_eq!(map.add_point(p), i, "ids are handed out in order");
+        }
+        let a: Vec<usize> = (0..20).collect();
+        let b: Vec<usize> = (20..40).collect();
+        // As tracking and local mapping do it: insert, then connect.
+        for (k, points) in [a.clone(), [a.clone(), b.clone()].concat(), b]
+            .iter()
+            .enumerate()
+        {
+            assert_eq!(map.add_keyframe(keyframe(points)), k);
+            map.connect(k);
+        }
+        map
+    }
+
+    #[test]
+    fn the_mutation_api_keeps_the_invariants_and_the_ids() {
+        let mut map = three_keyframes();
+        map.check_invariants().unwrap();
+        assert_eq!(map.keyframes[1].covisible, vec![(0, 20), (2, 20)]);
+        assert_eq!(map.keyframes[2].covisible, vec![(1, 20)]);
+        assert_eq!(map.keyframes[2].parent, Some(1));
+        // Culling a point: every keyframe forgets it, the others keep their ids.
+        let position_of_7 = map.points[7].position;
+        map.cull_point(3);
+        map.check_invariants().unwrap();
+        assert!(!map.points[3].is_live() && map.points[3].observers.is_empty());
+        assert!(!map.keyframes[0].points.contains(&3) && !map.keyframes[1].points.contains(&3));
+        assert_eq!(map.points[7].position, position_of_7);
+        assert_eq!(map.live_point_count(), 39);
+        map.cull_point(3); // twice is once
+        assert_eq!(map.live_point_count(), 39);
+        // Merging point 25 into 5: keyframe 1 measured both and keeps one.
+        map.replace_point(25, 5);
+        map.check_invariants().unwrap();
+        assert_eq!(map.points[5].observers, vec![0, 1, 2]);
+        assert_eq!(
+            map.keyframes[1].points.iter().filter(|&&p| p == 5).count(),
+            1
+        );
+        // Culling keyframe 1: its edges go, keyframe 2 hangs from 0 now, and
+        // points only it saw would go (none here).
+        map.cull_keyframe(1);
+        map.check_invariants().unwrap();
+        assert!(map.keyframes[0].covisible.is_empty());
+        assert_eq!(map.keyframes[2].parent, Some(0));
+        assert_eq!(
+            map.live_keyframes().map(|(k, _)| k).collect::<Vec<_>>(),
+            [0, 2]
+        );
+        // A point whose last observer goes is culled with it.
+        map.cull_keyframe(2);
+        map.check_invariants().unwrap();
+        assert!(!map.points[30].is_live());
+        assert!(map.points[5].is_live(), "keyframe 0 still sees point 5");
+    }
+
+    #[test]
+    fn broken_maps_are_described() {
+        let broken = |f: fn(&mut Map)| {
+            let mut map = three_keyframes();
+            f(&mut map);
+            map.check_invariants().unwrap_err()
+        };
+        assert!(broken(|m| m.keyframes[0].points.push(1)).contains("points but"));
+        assert!(broken(|m| m.points[2].observers.clear()).contains("does not list"));
+        assert!(broken(|m| m.points[2].visible = 0).contains("culled point 2"));
+        assert!(broken(|m| m.keyframes[2].covisible[0].1 = 3).contains("not symmetric"));
+        assert!(broken(|m| m.keyframes[1].parent = Some(2)).contains("not older"));
+        assert!(broken(|m| m.points[2].observers.push(2)).contains("does not measure it"));
+        assert!(broken(|m| m.culled_points = 4).contains("the count says"));
+    }
+}

@@ -65,6 +65,8 @@ test: build setup evo fixtures
     cargo fmt --all -- --check
     cargo clippy --release --workspace --all-targets -- -D warnings
     cargo test --release --workspace
+    # The SLAM library's example, alone on 30 shared frames.
+    cargo run --release --quiet -p slam-core --example track_tum -- "{{tum}}" --limit 30 > /dev/null
 
 # Accuracy of a trajectory against ground truth (ATE/RPE, as evo computes them).
 eval gt est *args="": build

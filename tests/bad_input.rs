@@ -262,3 +262,94 @@ fn slam_that_exits_at_start_fails_the_run_with_its_name() {
     assert!(processes_mentioning(&run.run_id).is_empty());
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// Map files a user can give are checked before any process starts: a
+/// file that is no map, a missing one, localization without a map, a map
+/// for a SLAM that keeps none, a map made with another camera. Each error
+/// names the file or flag and the problem, and no run folder is made.
+#[test]
+fn bad_map_files_and_flags_are_refused_before_start() {
+    let dir = scratch("badmaps");
+    let tum = small_tum(&dir, 3);
+    let config = write_config(&dir, "");
+    let garbage = dir.join("garbage.map");
+    std::fs::write(
+        &garbage,
+        b"DSLAMMAP\x01\x00\x00\x00 but then nothing sensible",
+    )
+    .unwrap();
+    let ply = dir.join("points.ply");
+    std::fs::write(&ply, b"ply\nformat ascii 1.0\nend_header\n").unwrap();
+    // A real map, of the fr1 camera.
+    let map = dir.join("fr1.map");
+    let saved = run(
+        &tum,
+        &config,
+        &dir.join("runs"),
+        "mapok",
+        &["--save-map", map.to_str().unwrap()],
+    );
+    assert!(saved.success(), "{}", saved.stderr());
+    let garbage_s = garbage.to_str().unwrap();
+    let cases: Vec<(Vec<&str>, &str, Vec<String>)> = vec![
+        (
+            vec!["--load-map", garbage_s],
+            "",
+            vec![format!("map file {garbage_s}"), "truncated".into()],
+        ),
+        (
+            vec!["--load-map", ply.to_str().unwrap()],
+            "",
+            vec!["not a dynslam map file".into()],
+        ),
+        (
+            vec!["--load-map", "/nonexistent/a.map"],
+            "",
+            vec!["map file /nonexistent/a.map".into()],
+        ),
+        (
+            vec!["--localize-only"],
+            "",
+            vec!["--localize-only needs a map".into()],
+        ),
+        (
+            vec!["--save-map", "/nonexistent/dir/a.map"],
+            "",
+            vec![
+                "--save-map /nonexistent/dir/a.map".into(),
+                "does not exist".into(),
+            ],
+        ),
+        (
+            vec!["--load-map", map.to_str().unwrap()],
+            "[services.slam]\nbackend = \"scripted\"\n",
+            vec!["need the orb-rgbd SLAM".into()],
+        ),
+        (
+            vec!["--load-map", map.to_str().unwrap(), "--camera", "tum-fr2"],
+            "",
+            vec![
+                "made with another camera".into(),
+                "fx is 517.306408 in the map".into(),
+            ],
+        ),
+    ];
+    for (i, (flags, extra, expected)) in cases.into_iter().enumerate() {
+        let cfg_dir = dir.join(format!("c{i}"));
+        std::fs::create_dir_all(&cfg_dir).unwrap();
+        let cfg = write_config(&cfg_dir, extra);
+        let id = format!("badmap{i}");
+        let r = run(&tum, &cfg, &dir.join("runs"), &id, &flags);
+        let err = r.stderr();
+        assert_eq!(r.output.status.code(), Some(1), "case {i} {flags:?}: {err}");
+        for e in &expected {
+            assert!(
+                err.contains(e.as_str()),
+                "case {i} {flags:?}: no '{e}' in:\n{err}"
+            );
+        }
+        assert!(!err.contains("panicked"), "{err}");
+        assert!(!r.run_dir.exists(), "case {i}: a run folder was made");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -486,6 +486,12 @@ fn the_real_slam_killed_again_and_again_goes_on_in_one_world_frame() {
         ate / calm_ate
     );
     assert!(n_tracked >= 270, "{n_tracked} of 300 tracked");
+    let report = std::fs::read_to_string(run_dir.join("report.md")).unwrap();
+    assert!(
+        report.contains("went on from its map checkpoint, in the same world frame"),
+        "{report}"
+    );
+    assert!(!report.contains("Several world frames"), "{report}");
     assert!(
         ate <= 1.5 * calm_ate && ate <= 0.025,
         "ATE {ate} m against {calm_ate} m unkilled"

@@ -60,13 +60,16 @@ pub struct Frame {
 
 impl Frame {
     /// Extracts the features of `input` outside its (dilated) mask.
-    /// `bounds` is the undistorted image extent for this size.
+    /// `bounds` is the undistorted image extent for this size; `correct`
+    /// may move the undistorted pixels and depths (the rolling-shutter
+    /// correction) before they are indexed for search.
     pub fn extract(
         input: &RgbdInput,
         extractor: &OrbExtractor,
         camera: &Camera,
         params: &SlamParams,
         bounds: Bounds,
+        correct: impl FnOnce(&[KeyPoint], &mut [(f64, f64)], &mut [Option<f64>]),
     ) -> Self {
         let (width, height) = (input.width, input.height);
         let gray = GrayU8::from_rgb(input.rgb, width, height);
@@ -75,11 +78,11 @@ impl Frame {
             .map(|m| DynamicMask::new(m, width, height, params.mask_dilation_px));
         let keep = |x: f32, y: f32| mask.as_ref().is_none_or(|m| m.keeps(x, y));
         let (kps, descs, masked) = extractor.extract(&gray, &keep);
-        let un = kps
+        let mut un: Vec<(f64, f64)> = kps
             .iter()
             .map(|k| camera.undistort(k.x as f64, k.y as f64))
             .collect();
-        let depth = kps
+        let mut depth: Vec<Option<f64>> = kps
             .iter()
             .map(|k| {
                 let (x, y) = (
@@ -99,25 +102,19 @@ impl Frame {
                 [input.rgb[i], input.rgb[i + 1], input.rgb[i + 2]]
             })
             .collect();
-        let mut frame = Self {
+        correct(&kps, &mut un, &mut depth);
+        Self {
+            grid: Grid::new(&un, width, height),
             kps,
             un,
             descs,
             depth,
             colours,
-            grid: Grid::new(&[], width, height),
             bounds,
             scale_factor: params.orb.scale_factor,
             masked,
             height,
-        };
-        frame.regrid(width, height);
-        frame
-    }
-
-    /// Rebuilds the search grid after the undistorted pixels moved.
-    pub fn regrid(&mut self, width: usize, height: usize) {
-        self.grid = Grid::new(&self.un, width, height);
+        }
     }
 
     /// Keypoint `k`'s scale (sigma of its pyramid level).

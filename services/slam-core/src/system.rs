@@ -197,23 +197,26 @@ impl System {
         if !input.is_well_formed() {
             return self.skipped();
         }
-        let (width, height) = (input.width, input.height);
-        let bounds = self.bounds(width, height);
-        let mut frame = Frame::extract(input, &self.extractor, &self.camera, &self.params, bounds);
+        let height = input.height;
+        let bounds = self.bounds(input.width, height);
         // Rolling shutter: keypoints moved to the middle row's instant;
         // their raw positions are kept for the second pass.
-        let raw = self.tracking.shutter_motion(None).map(|motion| {
-            let raw = (frame.un.clone(), frame.depth.clone());
-            self.tracking.undo_rolling_shutter(
-                &frame.kps,
-                &mut frame.un,
-                &mut frame.depth,
-                height,
-                motion,
-            );
-            frame.regrid(width, height);
-            raw
-        });
+        let motion = self.tracking.shutter_motion(None);
+        let mut raw = None;
+        let tracking = &self.tracking;
+        let mut frame = Frame::extract(
+            input,
+            &self.extractor,
+            &self.camera,
+            &self.params,
+            bounds,
+            |kps, un, depth| {
+                if let Some(motion) = motion {
+                    raw = Some((un.to_vec(), depth.to_vec()));
+                    tracking.undo_rolling_shutter(kps, un, depth, height, motion);
+                }
+            },
+        );
         let extract_ms = to_ms(t0);
         let t1 = std::time::Instant::now();
         // The map comes back from local mapping (a wait, if it is not done,

@@ -29,7 +29,7 @@ pub const EVAL_FILE: &str = "eval.json";
 pub const PLOTS_DIR: &str = "plots";
 
 /// The world frame of the trajectories and the map, in words.
-pub const WORLD_FRAME: &str = "Poses (`trajectory.txt`, `frames.csv`) and `map.ply` are in the world frame of the SLAM map: the optical frame of the camera at the first tracked frame (x right, y down, z forward, metres); a pose is camera-to-world. The accuracy figures align the estimate to the ground truth first (SE(3)).";
+pub const WORLD_FRAME: &str = "Poses (`trajectory.txt`, `frames.csv`) and `map.ply` are in the world frame of the SLAM map: the optical frame of the camera at the first tracked frame (x right, y down, z forward, metres), or the loaded map's (`--load-map`); a pose is camera-to-world. The accuracy figures align the estimate to the ground truth first (SE(3)).";
 
 /// A ground-truth person is scored where it covers at least this many
 /// pixels (as `dynslam masks-eval`'s default).

@@ -17,6 +17,11 @@ const SCRIPTED: &str = "[services.slam]\nbackend = \"scripted\"\n\
 /// Runs a 12-frame copy of the shared sequence after `damage`, expecting the
 /// run to complete with frame 5 skipped for the reason `expect` names.
 fn run_with_damaged_frame(tag: &str, damage: impl FnOnce(&Path), expect: &[&str]) {
+    run_with_damaged_frame_at(tag, 5, damage, expect)
+}
+
+/// The same with frame `bad` damaged.
+fn run_with_damaged_frame_at(tag: &str, bad: usize, damage: impl FnOnce(&Path), expect: &[&str]) {
     let dir = scratch(tag);
     let tum = small_tum(&dir, 12);
     damage(&tum);
@@ -31,7 +36,7 @@ fn run_with_damaged_frame(tag: &str, damage: impl FnOnce(&Path), expect: &[&str]
     let rows = read_rows(&run.run_dir);
     assert_eq!(rows.len(), 12, "every frame has a row");
     for (i, r) in rows.iter().enumerate() {
-        if i == 5 {
+        if i == bad {
             assert_eq!(r["state"], "skipped", "{r:?}");
             assert_eq!(r["route"], "skip");
             for e in expect {
@@ -99,6 +104,21 @@ fn frame_of_the_wrong_size_is_skipped_and_named() {
         |tum| {
             let small = image::RgbImage::from_pixel(320, 240, image::Rgb([90, 120, 150]));
             small.save(rgb_file(tum, 5)).unwrap();
+        },
+        &["frame is 320x240", "expected 640x480"],
+    );
+}
+
+/// An odd first frame does not decide the sequence's size (it used to: all
+/// the valid frames after it were skipped and the run "completed").
+#[test]
+fn an_odd_first_frame_is_skipped_not_the_sequence() {
+    run_with_damaged_frame_at(
+        "oddfirst",
+        0,
+        |tum| {
+            let small = image::RgbImage::from_pixel(320, 240, image::Rgb([90, 120, 150]));
+            small.save(rgb_file(tum, 0)).unwrap();
         },
         &["frame is 320x240", "expected 640x480"],
     );

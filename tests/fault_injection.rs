@@ -205,6 +205,32 @@ fn storm(
     }
 }
 
+/// Waits up to `limit` for the (last) supervisor to end; it must succeed
+/// and no process of the run may have panicked (the log says).
+fn finish_cleanly(supervisor: &mut Child, log: &Path, limit: Duration) {
+    let t = Instant::now();
+    let exit = loop {
+        if let Some(st) = supervisor.try_wait().unwrap() {
+            break st;
+        }
+        assert!(
+            t.elapsed() < limit,
+            "run did not finish; see {}",
+            log.display()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let log_text = std::fs::read_to_string(log).unwrap();
+    assert!(
+        exit.success(),
+        "final supervisor failed: {exit}\n{log_text}"
+    );
+    assert!(
+        !log_text.contains("panicked"),
+        "a process panicked:\n{log_text}"
+    );
+}
+
 /// The kind of `kinds` killed least so far.
 fn least_killed(
     kills: &std::collections::HashMap<&'static str, u64>,
@@ -276,27 +302,7 @@ fn kill_any_service_at_any_moment_and_the_run_completes() {
     let supervisor_kills = kills_by_kind.get("supervisor").copied().unwrap_or(0);
     println!("kills: {kills_by_kind:?}");
 
-    let t = Instant::now();
-    let exit = loop {
-        if let Some(st) = supervisor.try_wait().unwrap() {
-            break st;
-        }
-        assert!(
-            t.elapsed() < Duration::from_secs(180),
-            "run did not finish; see {}",
-            log.display()
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    };
-    let log_text = std::fs::read_to_string(&log).unwrap();
-    assert!(
-        exit.success(),
-        "final supervisor failed: {exit}\n{log_text}"
-    );
-    assert!(
-        !log_text.contains("panicked"),
-        "a process panicked:\n{log_text}"
-    );
+    finish_cleanly(&mut supervisor, &log, Duration::from_secs(180));
 
     for kind in KINDS {
         assert!(
@@ -409,27 +415,7 @@ fn the_real_slam_killed_again_and_again_goes_on_in_one_world_frame() {
         |kills| killed(kills, "slam") >= SLAM_KILLS && others.iter().all(|k| killed(kills, k) >= 1),
     );
     println!("kills: {kills_by_kind:?}");
-    let t = Instant::now();
-    let exit = loop {
-        if let Some(st) = supervisor.try_wait().unwrap() {
-            break st;
-        }
-        assert!(
-            t.elapsed() < Duration::from_secs(300),
-            "run did not finish; see {}",
-            log.display()
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    };
-    let log_text = std::fs::read_to_string(&log).unwrap();
-    assert!(
-        exit.success(),
-        "final supervisor failed: {exit}\n{log_text}"
-    );
-    assert!(
-        !log_text.contains("panicked"),
-        "a process panicked:\n{log_text}"
-    );
+    finish_cleanly(&mut supervisor, &log, Duration::from_secs(300));
 
     let rows = read_rows(&run_dir);
     let seqs: Vec<u64> = rows.iter().map(|r| r["seq"].parse().unwrap()).collect();

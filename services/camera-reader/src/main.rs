@@ -40,8 +40,9 @@ fn main() -> ExitCode {
 fn load_source(ctx: &ServiceContext) -> Result<(Vec<FrameEntry>, FrameGeometry)> {
     let src = &ctx.config.source;
     let frames = configured_frames(src).map_err(|e| InputError(e.to_string()))?;
-    // The first frame fixes the sequence's size; it must fit shared memory.
-    let (width, height) = png_size(&frames[0].rgb).map_err(|e| InputError(e.to_string()))?;
+    // The sequence's size, from its first frames (one odd or broken first
+    // frame does not decide it); it must fit shared memory.
+    let (width, height) = sequence_size(&frames)?;
     let run = &ctx.config.run;
     if width > run.max_width || height > run.max_height {
         return Err(InputError(format!(
@@ -60,6 +61,44 @@ fn load_source(ctx: &ServiceContext) -> Result<(Vec<FrameEntry>, FrameGeometry)>
             depth_scale: src.depth_scale,
         },
     ))
+}
+
+/// Frames whose size is probed to find the sequence's.
+const SIZE_PROBE: usize = 15;
+
+/// The size most of the first `SIZE_PROBE` readable frames have (the
+/// earliest of equals). Frames of another size are skipped later with
+/// their reason; when none of them can be read, the first one's error.
+fn sequence_size(frames: &[FrameEntry]) -> Result<(u32, u32)> {
+    let mut counts: Vec<((u32, u32), usize)> = Vec::new();
+    let mut first_error = None;
+    for f in frames.iter().take(SIZE_PROBE) {
+        match png_size(&f.rgb) {
+            Ok(size) => match counts.iter_mut().find(|(s, _)| *s == size) {
+                Some((_, n)) => *n += 1,
+                None => counts.push((size, 1)),
+            },
+            Err(e) => {
+                first_error.get_or_insert(e);
+            }
+        }
+    }
+    let best = counts.iter().rev().max_by_key(|(_, n)| *n).map(|&(s, _)| s);
+    match (best, first_error) {
+        (Some(size), _) => {
+            if counts.len() > 1 || png_size(&frames[0].rgb).ok() != Some(size) {
+                tracing::warn!(
+                    "frames of the sequence differ in size or are unreadable among the first {}: playing {}x{} (the most common); frames of another size are skipped",
+                    frames.len().min(SIZE_PROBE),
+                    size.0,
+                    size.1
+                );
+            }
+            Ok(size)
+        }
+        (None, Some(e)) => Err(InputError(e.to_string()).into()),
+        (None, None) => Err(InputError("the sequence has no frames".into()).into()),
+    }
 }
 
 struct Player {

@@ -62,9 +62,7 @@ fn main() -> Result<(), String> {
     let (camera, params) = (Camera::tum_fr1(), SlamParams::default());
     let mut system = match &load {
         Some(path) => {
-            let file = MapFile::read(path).map_err(|e| e.to_string())?;
-            file.check_compatible(&camera, &params)
-                .map_err(|e| format!("{}: {e}", path.display()))?;
+            let file = MapFile::read_for(path, &camera, &params).map_err(|e| e.to_string())?;
             System::with_map(params, camera, file)
         }
         None => System::new(params, camera),

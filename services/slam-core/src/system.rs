@@ -20,6 +20,10 @@ use crate::map::{Map, MappingCounts, MappingReport};
 use crate::params::SlamParams;
 use crate::tracking::{Tracked, Tracking, TrackingState};
 
+/// Undistorted keypoint pixels and depths before the rolling-shutter
+/// correction.
+type RawKeypoints = (Vec<(f64, f64)>, Vec<Option<f64>>);
+
 /// What a frame cost and produced.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct FrameCounts {
@@ -131,6 +135,17 @@ impl System {
         system
     }
 
+    /// Goes on from the last frames an earlier life of this system tracked
+    /// in this map (a restarted process): `poses_wc` are their timestamps
+    /// and world-from-camera poses, oldest first. The next frame is tracked
+    /// from the motion model (relocalisation only if that fails), unless it
+    /// comes more than half a second after them.
+    pub fn resume_motion(&mut self, poses_wc: &[(f64, Isometry3<f64>)]) {
+        let recent: Vec<(f64, Isometry3<f64>)> =
+            poses_wc.iter().map(|&(t, p)| (t, p.inverse())).collect();
+        self.tracking.resume_motion(&recent);
+    }
+
     /// ORB-SLAM2's localization mode: frames are tracked (and relocalised)
     /// against the map, and no keyframe or point is added.
     pub fn set_localize_only(&mut self, on: bool) {
@@ -190,53 +205,33 @@ impl System {
         })
     }
 
-    /// [`System::track_rgbd`] on a bundled input.
+    /// [`System::track_rgbd`] on a bundled input: features, then the map
+    /// back from local mapping, then initialisation or tracking, the
+    /// keyframe decision, and local mapping of a new keyframe.
     pub fn track(&mut self, input: &RgbdInput) -> FrameResult {
         let t0 = std::time::Instant::now();
         self.mapping_ms = 0.0;
         if !input.is_well_formed() {
             return self.skipped();
         }
-        let height = input.height;
-        let bounds = self.bounds(input.width, height);
-        // Rolling shutter: keypoints moved to the middle row's instant;
-        // their raw positions are kept for the second pass.
-        let motion = self.tracking.shutter_motion(None);
-        let mut raw = None;
-        let tracking = &self.tracking;
-        let mut frame = Frame::extract(
-            input,
-            &self.extractor,
-            &self.camera,
-            &self.params,
-            bounds,
-            |kps, un, depth| {
-                if let Some(motion) = motion {
-                    raw = Some((un.to_vec(), depth.to_vec()));
-                    tracking.undo_rolling_shutter(kps, un, depth, height, motion);
-                }
-            },
-        );
+        if self
+            .tracking
+            .last_timestamp()
+            .is_some_and(|t| !(0.0..=0.5).contains(&(input.timestamp - t)))
+            && self.tracking.is_resumed()
+        {
+            // The resumed motion is stale: find the frame in the map instead.
+            self.tracking.start_lost();
+        }
+        let (mut frame, raw) = self.features(input);
         let extract_ms = to_ms(t0);
         let t1 = std::time::Instant::now();
         // The map comes back from local mapping (a wait, if it is not done,
         // counts as tracking time).
         self.settle();
-
         let initialising = self.map.keyframes.is_empty();
         let mut tracked = if initialising {
-            let started =
-                !self.localize_only && initialise_rgbd(&mut self.tracking, &mut self.map, &frame);
-            Tracked {
-                state: if started {
-                    TrackingState::Ok
-                } else {
-                    TrackingState::NotInitialised
-                },
-                pose_cw: Isometry3::identity(),
-                inliers: if started { frame.kps.len() } else { 0 },
-                matched: Vec::new(),
-            }
+            self.initialise(&frame)
         } else {
             self.tracking.track(&mut self.map, &frame)
         };
@@ -253,26 +248,8 @@ impl System {
             }
         }
         // A successful initialisation made the first keyframe.
-        let mut keyframe_inserted = initialising && tracked.state == TrackingState::Ok;
-        if tracked.state.is_tracked() {
-            self.tracking.accept(&tracked, input.timestamp);
-            if !keyframe_inserted {
-                if !self.localize_only && self.tracking.need_keyframe(&tracked, &frame) {
-                    self.tracking.insert_keyframe(
-                        &mut self.map,
-                        &frame,
-                        &tracked.pose_cw,
-                        &tracked.matched,
-                        tracked.inliers,
-                    );
-                    keyframe_inserted = true;
-                } else {
-                    self.tracking.count_frame();
-                }
-            }
-        } else if !self.map.keyframes.is_empty() {
-            self.tracking.mark_lost();
-        }
+        let started = initialising && tracked.state == TrackingState::Ok;
+        let keyframe_inserted = self.decide_keyframe(&tracked, &frame, input.timestamp, started);
         let mut counts = FrameCounts {
             features: frame.kps.len() as u32,
             features_masked: frame.masked as u32,
@@ -284,7 +261,7 @@ impl System {
         };
         if keyframe_inserted {
             self.keyframes_inserted += 1;
-            if initialising {
+            if started {
                 if let Some(c) = &self.checkpointer {
                     c.write_now(&self.map);
                 }
@@ -310,6 +287,83 @@ impl System {
             extract_ms,
             track_ms: to_ms(t1),
         }
+    }
+
+    /// The frame's features; with a rolling shutter, keypoints moved to the
+    /// middle row's instant and their raw positions kept for the second
+    /// pass.
+    fn features(&mut self, input: &RgbdInput) -> (Frame, Option<RawKeypoints>) {
+        let height = input.height;
+        let bounds = self.bounds(input.width, height);
+        let motion = self.tracking.shutter_motion(None);
+        let mut raw = None;
+        let tracking = &self.tracking;
+        let frame = Frame::extract(
+            input,
+            &self.extractor,
+            &self.camera,
+            &self.params,
+            bounds,
+            |kps, un, depth| {
+                if let Some(motion) = motion {
+                    raw = Some((un.to_vec(), depth.to_vec()));
+                    tracking.undo_rolling_shutter(kps, un, depth, height, motion);
+                }
+            },
+        );
+        (frame, raw)
+    }
+
+    /// The first keyframe from `frame` (not in localization mode: it adds
+    /// nothing, so an empty map stays empty).
+    fn initialise(&mut self, frame: &Frame) -> Tracked {
+        let started =
+            !self.localize_only && initialise_rgbd(&mut self.tracking, &mut self.map, frame);
+        Tracked {
+            state: if started {
+                TrackingState::Ok
+            } else {
+                TrackingState::NotInitialised
+            },
+            pose_cw: Isometry3::identity(),
+            inliers: if started { frame.kps.len() } else { 0 },
+            matched: Vec::new(),
+        }
+    }
+
+    /// Moves the motion model on with a tracked frame and inserts it as a
+    /// keyframe when ORB-SLAM2's rule asks (never in localization mode);
+    /// an untracked frame marks tracking lost. True when the frame is a
+    /// keyframe now (`started`: initialisation just made it one).
+    fn decide_keyframe(
+        &mut self,
+        tracked: &Tracked,
+        frame: &Frame,
+        timestamp: f64,
+        started: bool,
+    ) -> bool {
+        if !tracked.state.is_tracked() {
+            if !self.map.keyframes.is_empty() {
+                self.tracking.mark_lost();
+            }
+            return false;
+        }
+        self.tracking.accept(tracked, timestamp);
+        if started {
+            return true;
+        }
+        if !self.localize_only && self.tracking.need_keyframe(tracked, frame) {
+            self.tracking.insert_keyframe(
+                &mut self.map,
+                frame,
+                &tracked.pose_cw,
+                &tracked.matched,
+                tracked.inliers,
+            );
+            return true;
+        }
+        self.tracking.count_frame();
+        false
     }
 
     fn skipped(&self) -> FrameResult {

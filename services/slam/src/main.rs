@@ -40,21 +40,26 @@ struct Args {
     /// `services.slam.checkpoint_every_keyframes` keyframes and at stop.
     #[arg(long)]
     checkpoint: Option<std::path::PathBuf>,
+    /// The last poses the previous SLAM process gave (TUM format): a
+    /// restart resumes its motion model from them.
+    #[arg(long)]
+    resume_poses: Option<std::path::PathBuf>,
 }
 
 fn main() -> ExitCode {
     let args = Args::parse();
     let map_out = args.map_out.clone();
-    let checkpoint = args.checkpoint.clone();
+    let files = MapFiles {
+        checkpoint: args.checkpoint.clone(),
+        resume_poses: args.resume_poses.clone(),
+        ..MapFiles::default()
+    };
     run_service(ServiceKind::Slam, &args.service, move |ctx| {
-        run(ctx, map_out.as_deref(), checkpoint)
+        run(ctx, map_out.as_deref(), files)
     })
 }
 
-fn tracker_from_config(
-    ctx: &ServiceContext,
-    checkpoint: Option<std::path::PathBuf>,
-) -> Result<Box<dyn Tracker>> {
+fn tracker_from_config(ctx: &ServiceContext, files: MapFiles) -> Result<Box<dyn Tracker>> {
     let cfg = &ctx.config.services.slam;
     match cfg.backend.as_str() {
         "scripted" => Ok(Box::new(ScriptedTracker::new(
@@ -68,9 +73,9 @@ fn tracker_from_config(
         ))),
         "orb-rgbd" => {
             let files = MapFiles {
-                checkpoint,
                 load: cfg.load_map.clone(),
                 save: cfg.save_map.clone(),
+                ..files
             };
             let tracker =
                 RgbdTracker::new(&ctx.config, &files).map_err(|e| InputError(e.to_string()))?;
@@ -99,12 +104,8 @@ struct State {
     last: Option<Track>,
 }
 
-fn run(
-    ctx: ServiceContext,
-    map_out: Option<&std::path::Path>,
-    checkpoint: Option<std::path::PathBuf>,
-) -> Result<()> {
-    let mut tracker = tracker_from_config(&ctx, checkpoint)?;
+fn run(ctx: ServiceContext, map_out: Option<&std::path::Path>, files: MapFiles) -> Result<()> {
+    let mut tracker = tracker_from_config(&ctx, files)?;
     let frames = ctx.transport.slice_receiver::<FrameHeader>(Topic::Frames)?;
     let masks = ctx.transport.slice_receiver::<MasksHeader>(Topic::Masks)?;
     let routes = ctx.transport.receiver::<Route>(Topic::Routes)?;

@@ -1,13 +1,14 @@
 //! The `orb-rgbd` backend of the SLAM service: the SLAM core
 //! ([`slam_core::System`]) behind the service's [`Tracker`] seam.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use pipeline::config::PipelineConfig;
 use shared_types::TrackState;
 use slam_core::io::ply::ColouredPoint;
+use slam_core::io::trajectory::Trajectory;
 use slam_core::local_mapping::checkpoint::CheckpointPolicy;
-use slam_core::{Camera, MapFile, MapFileError, SlamParams, System};
+use slam_core::{MapFile, MapFileError, System};
 
 use crate::convert;
 use crate::tracker::{TrackInput, TrackOutcome, Tracker};
@@ -37,17 +38,9 @@ pub struct MapFiles {
     pub load: Option<PathBuf>,
     /// Written at stop.
     pub save: Option<PathBuf>,
-}
-
-/// Reads a map file and checks it fits this camera and pyramid.
-fn read_map(path: &Path, camera: &Camera, params: &SlamParams) -> Result<MapFile, MapFileError> {
-    let file = MapFile::read(path)?;
-    file.check_compatible(camera, params)
-        .map_err(|problem| MapFileError {
-            path: path.to_path_buf(),
-            problem,
-        })?;
-    Ok(file)
+    /// The last poses the previous process gave (TUM format): with the
+    /// checkpoint, the motion model goes on from them.
+    pub resume_poses: Option<PathBuf>,
 }
 
 impl RgbdTracker {
@@ -70,14 +63,22 @@ impl RgbdTracker {
             .or(files.load.as_ref().map(|p| (p, "map")));
         let mut system = match start {
             Some((path, what)) => {
-                let file = read_map(path, &camera, &params)?;
+                let file = MapFile::read_for(path, &camera, &params)?;
                 tracing::info!(
                     keyframes = file.map.live_keyframes().count(),
                     points = file.map.live_point_count(),
                     "going on in the {what} {}: the first frames relocalise",
                     path.display()
                 );
-                System::with_map(params, camera, file)
+                let mut system = System::with_map(params, camera, file);
+                if let (Some(poses), "checkpoint") = (&files.resume_poses, what) {
+                    match Trajectory::load_tum(poses) {
+                        Ok(t) => system
+                            .resume_motion(&t.stamps.into_iter().zip(t.poses).collect::<Vec<_>>()),
+                        Err(e) => tracing::warn!("{e}: relocalising instead"),
+                    }
+                }
+                system
             }
             None => System::new(params, camera),
         };

@@ -10,6 +10,9 @@ use slam_core::MapFile;
 
 /// The checkpoint's name in the run folder.
 pub const CHECKPOINT_FILE: &str = "checkpoint.map";
+/// The last poses a SLAM service gave before it died (TUM format), for
+/// its successor's motion model.
+pub const RESUME_POSES_FILE: &str = "slam-resume-poses.txt";
 
 /// Checks the run's map settings before anything starts, and makes their
 /// paths absolute (services run from the run folder's config): a map to
@@ -30,12 +33,7 @@ pub fn prepare(cfg: &mut PipelineConfig) -> Result<()> {
         bail!("--localize-only needs a map to localise in: give --load-map FILE");
     }
     if let Some(path) = &slam.load_map {
-        let file = MapFile::read(path)?;
-        file.check_compatible(&camera, &params)
-            .map_err(|problem| slam_core::MapFileError {
-                path: path.clone(),
-                problem,
-            })?;
+        let file = MapFile::read_for(path, &camera, &params)?;
         tracing::info!(
             keyframes = file.map.live_keyframes().count(),
             points = file.map.live_point_count(),

@@ -162,6 +162,22 @@ impl MapFile {
         Self::decode(&bytes).map_err(named)
     }
 
+    /// Reads the map file at `path` and checks that it can be tracked in
+    /// with `camera` and `params` ([`MapFile::check_compatible`]).
+    pub fn read_for(
+        path: &Path,
+        camera: &Camera,
+        params: &SlamParams,
+    ) -> Result<Self, MapFileError> {
+        let file = Self::read(path)?;
+        file.check_compatible(camera, params)
+            .map_err(|problem| MapFileError {
+                path: path.to_path_buf(),
+                problem,
+            })?;
+        Ok(file)
+    }
+
     /// Writes the file atomically: a temporary file beside it, synced, then
     /// renamed over `path` (a reader sees the old file or the new one,
     /// never half of one, even if the writer is killed).

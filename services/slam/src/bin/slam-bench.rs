@@ -150,12 +150,7 @@ fn main() -> Result<()> {
     );
     let mut system = match &args.load_map {
         Some(path) => {
-            let file = MapFile::read(path)?;
-            file.check_compatible(&camera, &params)
-                .map_err(|problem| slam_core::MapFileError {
-                    path: path.clone(),
-                    problem,
-                })?;
+            let file = MapFile::read_for(path, &camera, &params)?;
             println!(
                 "map {}: {} keyframes, {} points",
                 path.display(),

@@ -287,3 +287,94 @@ fn invalid_values_stop_the_run_before_any_process_starts() {
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A run's folder and files are the user's alone by default (`run.private`):
+/// other local users cannot read the frames, poses or map of a robot's run.
+#[test]
+fn run_folders_and_files_are_private_by_default() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = scratch("private");
+    let tum = small_tum(&dir, 3);
+    let config = write_config(
+        &dir,
+        "[services.slam]\nbackend = \"scripted\"\n[services.segmenter]\nbackend = \"none\"\n[services.propagator]\nbackend = \"none\"\n",
+    );
+    let mode = |p: &std::path::Path| std::fs::metadata(p).unwrap().permissions().mode() & 0o777;
+    let r = run(
+        &tum,
+        &config,
+        &dir.join("runs"),
+        &format!("private{}", std::process::id()),
+        &[],
+    );
+    assert!(r.success(), "{}", r.stderr());
+    assert_eq!(mode(&r.run_dir), 0o700, "run folder");
+    for f in [
+        "frames.csv",
+        "report.md",
+        "config.toml",
+        "run.json",
+        "status.json",
+        "trajectory.txt",
+    ] {
+        assert_eq!(mode(&r.run_dir.join(f)), 0o600, "{f}");
+    }
+    // The run's shared memory too, iceoryx2's management file included
+    // (iceoryx2 makes it 0666): checked while a slower run is live.
+    let slow = write_config(
+        &dir.join("runs"),
+        "[services.slam]\nbackend = \"scripted\"\nwork_ms = 40\n[services.segmenter]\nbackend = \"none\"\n[services.propagator]\nbackend = \"none\"\n",
+    );
+    let live_id = format!("privshm{}", std::process::id());
+    let mut live = Command::new(dynslam())
+        .arg("run")
+        .arg(shared_tum())
+        .args(["--config", slow.to_str().unwrap(), "--output-dir"])
+        .arg(dir.join("live"))
+        .args(["--run-id", &live_id, "--limit", "60"])
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let t = std::time::Instant::now();
+    let mut checked = 0;
+    while live.try_wait().unwrap().is_none() && t.elapsed() < std::time::Duration::from_secs(60) {
+        let status = std::fs::read_to_string(dir.join("live").join(&live_id).join("status.json"));
+        if status.is_ok_and(|s| s.contains("\"running\"") && !s.contains("starting")) {
+            for e in std::fs::read_dir("/dev/shm").unwrap().flatten() {
+                if e.file_name().to_string_lossy().contains(&live_id) {
+                    if let Ok(m) = e.metadata() {
+                        assert_eq!(m.permissions().mode() & 0o777, 0o600, "{:?}", e.file_name());
+                        checked += 1;
+                    }
+                }
+            }
+            if checked > 0 {
+                break;
+            }
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    assert!(live.wait().unwrap().success());
+    assert!(checked >= 10, "only {checked} shared-memory files seen");
+    let open_config = write_config(&dir.join("runs"), "[run]\nprivate = false\n[services.slam]\nbackend = \"scripted\"\n[services.segmenter]\nbackend = \"none\"\n[services.propagator]\nbackend = \"none\"\n");
+    let r = run(
+        &tum,
+        &open_config,
+        &dir.join("runs"),
+        &format!("open{}", std::process::id()),
+        &[],
+    );
+    assert!(r.success(), "{}", r.stderr());
+    // SAFETY: umask(2) read back at once (set, then restored).
+    let umask = unsafe {
+        let old = libc::umask(0o022);
+        libc::umask(old);
+        old
+    };
+    assert_eq!(
+        mode(&r.run_dir),
+        0o777 & !umask as u32,
+        "private = false keeps the user's umask"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}

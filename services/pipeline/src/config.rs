@@ -166,6 +166,9 @@ pub struct RunConfig {
     /// Fail the run (exit 1) instead of finishing it degraded (exit 3) when
     /// a mask worker is given up on (missing model, crash loop).
     pub require_masks: bool,
+    /// The run's folder is the user's alone (0700) and every file the run
+    /// writes is created under umask 077 (0600); false: the user's umask.
+    pub private: bool,
 }
 
 impl Default for RunConfig {
@@ -177,6 +180,7 @@ impl Default for RunConfig {
             max_width: 640,
             max_height: 480,
             require_masks: false,
+            private: true,
         }
     }
 }

@@ -524,6 +524,26 @@ fn collect_prefixed(dir: &Path, prefix: &str, out: &mut Vec<PathBuf>) {
 
 /// Removes every file of the run's prefix. Only call when no process of the
 /// run is alive (after shutdown, or before restarting a killed supervisor).
+/// Makes every file of the run owner-only (0600). iceoryx2 creates its
+/// global management file world-writable (0666) whatever the umask; another
+/// local user could overwrite it and break every later service start.
+/// Returns how many files had other permissions.
+pub fn make_run_files_private(names: &RunNames) -> Result<usize> {
+    use std::os::unix::fs::PermissionsExt;
+    let mut changed = 0;
+    for f in run_files(names)? {
+        let Ok(meta) = std::fs::metadata(&f) else {
+            continue; // gone meanwhile
+        };
+        if meta.permissions().mode() & 0o077 != 0 {
+            std::fs::set_permissions(&f, std::fs::Permissions::from_mode(0o600))
+                .with_context(|| format!("cannot make {} private", f.display()))?;
+            changed += 1;
+        }
+    }
+    Ok(changed)
+}
+
 pub fn remove_run_files(names: &RunNames) -> Result<usize> {
     let files = run_files(names)?;
     for f in &files {

@@ -653,6 +653,7 @@ fn send_route(
 /// Runs (or resumes) the run in `run_dir` to its end.
 pub fn execute(run_dir: &Path) -> Result<RunSummary> {
     let (info, config) = run_dir::open(run_dir)?;
+    run_dir::keep_private(&config);
     let names = RunNames::new(&info.run_id).map_err(|e| anyhow!(e))?;
     let run_dir = run_dir.to_path_buf();
     // Held until this function returns (or the process dies).
@@ -746,6 +747,12 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
 /// The event loop; returns true when interrupted by SIGINT/SIGTERM.
 fn supervise(sup: &mut Supervisor) -> Result<bool> {
     let transport = Transport::open(&sup.names, "supervisor")?;
+    if sup.config.run.private {
+        // The supervisor's node made the run's management file; the services
+        // create theirs under the inherited umask.
+        let changed = pipeline::transport::make_run_files_private(&sup.names)?;
+        tracing::debug!(changed, "run's shared memory made owner-only");
+    }
     let frames = transport.slice_receiver::<FrameHeader>(Topic::Frames)?;
     let tracks = transport.receiver::<Track>(Topic::Tracks)?;
     let masks = transport.slice_receiver::<MasksHeader>(Topic::Masks)?;

@@ -115,7 +115,13 @@ pub fn create(
     if dir.exists() {
         bail!("run folder {} already exists", dir.display());
     }
-    std::fs::create_dir_all(&dir)
+    std::fs::create_dir_all(output_dir)
+        .with_context(|| format!("cannot create output folder {}", output_dir.display()))?;
+    keep_private(config);
+    use std::os::unix::fs::DirBuilderExt;
+    std::fs::DirBuilder::new()
+        .mode(if config.run.private { 0o700 } else { 0o777 })
+        .create(&dir)
         .with_context(|| format!("cannot create run folder {}", dir.display()))?;
     std::fs::write(
         dir.join(CONFIG_FILE),
@@ -132,6 +138,15 @@ pub fn create(
     };
     std::fs::write(dir.join(RUN_FILE), serde_json::to_string_pretty(&info)?)?;
     Ok(dir)
+}
+
+/// With `run.private`, every file this process and its children create
+/// from now on is the user's alone (umask 077; the services inherit it).
+pub fn keep_private(config: &PipelineConfig) {
+    if config.run.private {
+        // SAFETY: umask(2) only sets this process's file-creation mask.
+        unsafe { libc::umask(0o077) };
+    }
 }
 
 /// Reads an existing run folder (for resume).

@@ -479,7 +479,8 @@ fn the_real_slam_killed_again_and_again_goes_on_in_one_world_frame() {
     );
     assert!(!report.contains("Several world frames"), "{report}");
     // The issue also asks for <= 1.5x the unkilled run's ATE: measured
-    // x1.14, x1.18 and x1.61 in three runs (the kill moments are random;
+    // x1.14, x1.18, x1.61, then (newest checkpoint always written) x1.32,
+    // x1.51, x1.33 (the kill moments are random;
     // replaying a run's restarts in the library, see
     // services/slam-core/tests/restart_replay.rs, gives x1.26 for the x1.61
     // one). Not met reliably yet: the ratio is printed above, not asserted.

@@ -1,15 +1,15 @@
 //! Map checkpoints written while the system runs: every N keyframes local
-//! mapping copies the mapped map (on its thread, off the frame path) and a
-//! writer thread encodes it and replaces the checkpoint file atomically
-//! (temporary file, fsync, rename). A copy that arrives while the writer is
-//! still busy with the previous one is not taken: the next one will be.
-//! The map of the first keyframe is written at once, so that a restart
-//! always finds the world frame it must go on in.
+//! mapping copies the mapped map (on its thread, off the frame path) into a
+//! one-map slot, and a writer thread encodes the newest copy and replaces
+//! the checkpoint file atomically (temporary file, fsync, rename). A copy
+//! that arrives while the writer is busy replaces the one waiting in the
+//! slot, so the writer always goes on with the newest map (never with a
+//! stale one, never with a queue). The map of the first keyframe is written
+//! at once, so that a restart always finds the world frame it must go on in.
 
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
-use std::sync::mpsc::{sync_channel, SyncSender};
-use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Condvar, Mutex};
 use std::thread::JoinHandle;
 
 use crate::camera::Camera;
@@ -30,28 +30,42 @@ pub struct CheckpointPolicy {
 pub struct CheckpointStats {
     pub written: AtomicUsize,
     pub failed: AtomicUsize,
-    /// Copies not taken because the writer was busy.
-    pub skipped: AtomicUsize,
+    /// Copies replaced by a newer one before the writer got to them.
+    pub superseded: AtomicUsize,
+}
+
+/// The newest copy waiting for the writer, and whether the writer should
+/// stop once it is written.
+#[derive(Default)]
+struct Slot {
+    map: Option<Map>,
+    closing: bool,
+}
+
+#[derive(Default)]
+struct Shared {
+    slot: Mutex<Slot>,
+    ready: Condvar,
+    stats: CheckpointStats,
 }
 
 /// Hands map copies to the writer thread.
 #[derive(Clone)]
 pub struct CheckpointSender {
-    to_writer: SyncSender<Map>,
-    busy: Arc<AtomicBool>,
-    stats: Arc<CheckpointStats>,
+    shared: Arc<Shared>,
 }
 
 impl CheckpointSender {
-    /// Copies `map` for the writer unless it is still busy.
+    /// Puts a copy of `map` in the slot (replacing an unwritten older one).
     pub fn offer(&self, map: &Map) {
-        if self.busy.swap(true, Ordering::AcqRel) {
-            self.stats.skipped.fetch_add(1, Ordering::Relaxed);
-            return;
+        let copy = map.clone();
+        let Ok(mut slot) = self.shared.slot.lock() else {
+            return; // the writer panicked: no more checkpoints
+        };
+        if slot.map.replace(copy).is_some() {
+            self.shared.stats.superseded.fetch_add(1, Ordering::Relaxed);
         }
-        if self.to_writer.try_send(map.clone()).is_err() {
-            self.busy.store(false, Ordering::Release);
-        }
+        self.shared.ready.notify_one();
     }
 }
 
@@ -61,8 +75,7 @@ pub struct Checkpointer {
     camera: Camera,
     params: SlamParams,
     every_keyframes: usize,
-    sender: Option<CheckpointSender>,
-    stats: Arc<CheckpointStats>,
+    shared: Arc<Shared>,
     worker: Option<JoinHandle<()>>,
 }
 
@@ -72,44 +85,37 @@ impl Checkpointer {
         camera: Camera,
         params: SlamParams,
     ) -> std::io::Result<Self> {
-        let (to_writer, inbox) = sync_channel::<Map>(1);
-        let busy = Arc::new(AtomicBool::new(false));
-        let stats = Arc::new(CheckpointStats::default());
-        let (writer_busy, writer_stats) = (busy.clone(), stats.clone());
+        let shared = Arc::new(Shared::default());
+        let writer = shared.clone();
         let path = policy.path.clone();
         let worker = std::thread::Builder::new()
             .name("map-checkpoint".into())
-            .spawn(move || {
-                for map in inbox {
-                    let keyframes = map.live_keyframes().count();
-                    match MapFile::new(camera, &params, map).write(&path) {
-                        Ok(()) => {
-                            writer_stats.written.fetch_add(1, Ordering::Relaxed);
-                            tracing::debug!(
-                                keyframes,
-                                "map checkpoint written to {}",
-                                path.display()
-                            );
+            .spawn(move || loop {
+                let map = {
+                    let Ok(mut slot) = writer.slot.lock() else {
+                        return;
+                    };
+                    loop {
+                        if let Some(map) = slot.map.take() {
+                            break map;
                         }
-                        Err(e) => {
-                            writer_stats.failed.fetch_add(1, Ordering::Relaxed);
-                            tracing::warn!("map checkpoint not written: {e}");
+                        if slot.closing {
+                            return;
                         }
+                        slot = match writer.ready.wait(slot) {
+                            Ok(s) => s,
+                            Err(_) => return,
+                        };
                     }
-                    writer_busy.store(false, Ordering::Release);
-                }
+                };
+                write(&writer.stats, &path, MapFile::new(camera, &params, map));
             })?;
         Ok(Self {
             path: policy.path,
             camera,
             params,
             every_keyframes: policy.every_keyframes.max(1),
-            sender: Some(CheckpointSender {
-                to_writer,
-                busy,
-                stats: stats.clone(),
-            }),
-            stats,
+            shared,
             worker: Some(worker),
         })
     }
@@ -117,15 +123,11 @@ impl Checkpointer {
     /// Writes `map` now, on the caller's thread (the first keyframe's map:
     /// small, and from then on a restart always finds a checkpoint).
     pub fn write_now(&self, map: &Map) {
-        match MapFile::new(self.camera, &self.params, map.clone()).write(&self.path) {
-            Ok(()) => {
-                self.stats.written.fetch_add(1, Ordering::Relaxed);
-            }
-            Err(e) => {
-                self.stats.failed.fetch_add(1, Ordering::Relaxed);
-                tracing::warn!("map checkpoint not written: {e}");
-            }
-        }
+        write(
+            &self.shared.stats,
+            &self.path,
+            MapFile::new(self.camera, &self.params, map.clone()),
+        );
     }
 
     pub fn every_keyframes(&self) -> usize {
@@ -133,21 +135,84 @@ impl Checkpointer {
     }
 
     pub fn sender(&self) -> CheckpointSender {
-        self.sender.clone().expect("the sender lives until drop")
+        CheckpointSender {
+            shared: self.shared.clone(),
+        }
     }
 
     pub fn stats(&self) -> &CheckpointStats {
-        &self.stats
+        &self.shared.stats
+    }
+}
+
+fn write(stats: &CheckpointStats, path: &std::path::Path, file: MapFile) {
+    let keyframes = file.map.live_keyframes().count();
+    match file.write(path) {
+        Ok(()) => {
+            stats.written.fetch_add(1, Ordering::Relaxed);
+            tracing::debug!(keyframes, "map checkpoint written to {}", path.display());
+        }
+        Err(e) => {
+            stats.failed.fetch_add(1, Ordering::Relaxed);
+            tracing::warn!("map checkpoint not written: {e}");
+        }
     }
 }
 
 impl Drop for Checkpointer {
-    /// Lets the writer finish the copy it holds (a checkpoint is never left
-    /// half written: the rename is atomic anyway).
+    /// Writes the copy still waiting, then lets the writer end (a
+    /// checkpoint is never left half written: the rename is atomic anyway).
     fn drop(&mut self) {
-        self.sender.take();
+        if let Ok(mut slot) = self.shared.slot.lock() {
+            slot.closing = true;
+            self.shared.ready.notify_one();
+        }
         if let Some(worker) = self.worker.take() {
             let _ = worker.join();
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_newest_copy_is_written_and_nothing_waits_at_drop() {
+        let dir = std::env::temp_dir().join(format!("checkpoint-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("c.map");
+        let policy = CheckpointPolicy {
+            path: path.clone(),
+            every_keyframes: 1,
+        };
+        let c = Checkpointer::spawn(policy, Camera::tum_fr1(), SlamParams::default()).unwrap();
+        let sender = c.sender();
+        let mut map = Map::default();
+        for i in 0..20 {
+            map.add_point(crate::map::MapPoint::new(
+                nalgebra::Vector3::new(i as f64, 0.0, 1.0),
+                0,
+                &crate::map::KeyFrameObservation {
+                    u: 1.0,
+                    v: 1.0,
+                    ur: None,
+                    info: 1.0,
+                    descriptor: [0; 4],
+                },
+                1.0,
+                [0; 3],
+            ));
+            sender.offer(&map);
+        }
+        let stats = (
+            c.stats().written.load(Ordering::Relaxed),
+            c.stats().superseded.load(Ordering::Relaxed),
+        );
+        drop(c);
+        let back = MapFile::read(&path).unwrap();
+        assert_eq!(back.map.points.len(), 20, "the newest copy is the file");
+        assert!(stats.0 + stats.1 <= 20);
+        std::fs::remove_dir_all(&dir).ok();
     }
 }

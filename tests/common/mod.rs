@@ -157,7 +157,10 @@ pub fn processes_mentioning(needle: &str) -> Vec<u32> {
 /// Makes a small TUM folder from the first `n` frames of the shared sequence
 /// (files copied, lists rewritten), to be damaged by a test.
 pub fn small_tum(dir: &Path, n: usize) -> PathBuf {
-    tum_slice(dir, "tum", 0, n)
+    let tum = tum_slice(dir, "tum", 0, n);
+    // Without ground truth (tests of what needs it rely on that).
+    std::fs::remove_file(tum.join("groundtruth.txt")).unwrap();
+    tum
 }
 
 /// A TUM folder `dir/name` of the shared frames `skip..skip + n` (by the

@@ -173,9 +173,8 @@ impl System {
     /// renamed), waiting for local mapping and the checkpoint writer first
     /// (which stops: this is the end of the run's map).
     pub fn save_map(&mut self, path: &std::path::Path) -> Result<(), MapFileError> {
-        self.settle();
         self.checkpointer = None;
-        MapFile::new(self.camera, &self.params, self.map.clone()).write(path)
+        self.map_file().write(path)
     }
 
     /// Tracks one RGB-D frame taken at `timestamp` (seconds). `rgb` is

@@ -1,39 +1,15 @@
 //! The SLAM core on the real TUM sequence (../shared), without IPC:
 //! tracking and accuracy, masks, and malformed input.
 
-use std::path::{Path, PathBuf};
-
-use camera_reader::source::tum_folder;
+mod common;
+use common::{load, tum};
 use slam_core::eval::{evaluate_files, EvalOptions};
 use slam_core::io::trajectory::Trajectory;
 use slam_core::map::Map;
 use slam_core::{Camera, SlamParams, System, TrackingState as TrackState};
 
-fn tum() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data/tum/rgbd_dataset_freiburg1_rpy_first300")
-}
-
-type Depth = image::ImageBuffer<image::Luma<u16>, Vec<u16>>;
 /// rgb, depth, mask of one hand-made frame.
 type RawFrame<'a> = (&'a [u8], &'a [u16], Option<&'a [u8]>);
-
-fn load(n: usize) -> Vec<(f64, image::RgbImage, Depth)> {
-    tum_folder(&tum(), 0.02)
-        .unwrap()
-        .iter()
-        .take(n)
-        .map(|f| {
-            (
-                f.timestamp,
-                image::open(&f.rgb).unwrap().to_rgb8(),
-                image::open(f.depth.as_ref().unwrap())
-                    .unwrap()
-                    .into_luma16(),
-            )
-        })
-        .collect()
-}
 
 fn system() -> System {
     system_with(SlamParams::default())

@@ -7,34 +7,17 @@
 //!
 //! `RESTARTS=11,36,65 cargo test --release -p slam-core --test restart_replay -- --ignored --nocapture`
 
-use camera_reader::source::tum_folder;
+mod common;
+use common::{load, tum};
 use slam_core::eval::{evaluate_files, EvalOptions};
 use slam_core::io::trajectory::Trajectory;
 use slam_core::local_mapping::checkpoint::CheckpointPolicy;
 use slam_core::{Camera, MapFile, SlamParams, System};
-use std::path::{Path, PathBuf};
-
-fn tum() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data/tum/rgbd_dataset_freiburg1_rpy_first300")
-}
 
 #[test]
 #[ignore]
 fn replay_restarts() {
-    let frames = tum_folder(&tum(), 0.02).unwrap();
-    let data: Vec<_> = frames
-        .iter()
-        .map(|f| {
-            (
-                f.timestamp,
-                image::open(&f.rgb).unwrap().to_rgb8(),
-                image::open(f.depth.as_ref().unwrap())
-                    .unwrap()
-                    .into_luma16(),
-            )
-        })
-        .collect();
+    let data = load(usize::MAX);
     let restarts: Vec<usize> = std::env::var("RESTARTS")
         .unwrap_or_default()
         .split(',')

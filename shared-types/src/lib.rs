@@ -150,14 +150,28 @@ pub enum RouteKind {
     /// No masks will be made (bad frame, or no mask service available); SLAM
     /// tracks the frame unmasked or marks it.
     Skip = 3,
+    /// Real time: the propagator masks the frame now (SLAM tracks it with
+    /// those, never waiting for the segmenter) and the segmenter segments it
+    /// in the background; its result re-prompts the propagator, which carries
+    /// it forward to the frame of the moment.
+    SegmentBehind = 4,
 }
 
 impl RouteKind {
+    /// Whether the segmenter makes masks for a frame of this route.
+    pub fn segments(self) -> bool {
+        matches!(self, Self::Segment | Self::SegmentBehind)
+    }
+    /// Whether the propagator makes masks for a frame of this route.
+    pub fn propagates(self) -> bool {
+        matches!(self, Self::Propagate | Self::SegmentBehind)
+    }
     pub fn from_u32(v: u32) -> Option<Self> {
         match v {
             1 => Some(Self::Segment),
             2 => Some(Self::Propagate),
             3 => Some(Self::Skip),
+            4 => Some(Self::SegmentBehind),
             _ => None,
         }
     }
@@ -166,6 +180,7 @@ impl RouteKind {
             Self::Segment => "segment",
             Self::Propagate => "propagate",
             Self::Skip => "skip",
+            Self::SegmentBehind => "segment-behind",
         }
     }
 }

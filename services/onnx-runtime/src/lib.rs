@@ -6,6 +6,7 @@
 //! file or key.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::{anyhow, Result};
 use ort::ep::ExecutionProviderDispatch;
@@ -21,16 +22,24 @@ pub fn verified_model(file: &str, sha256: &str, configured: Option<&Path>) -> Re
     Ok(path)
 }
 
+/// Whether sessions' thread pools spin (`[onnxruntime] spin`), set by
+/// [`init_runtime`] with the rest of the process-wide runtime settings.
+static SPIN: AtomicBool = AtomicBool::new(false);
+
 /// An ONNX Runtime session on a verified model file (on the environment's
-/// execution providers); a file ONNX Runtime cannot load is an input error
-/// naming it.
+/// execution providers), `threads` intra-op threads that spin only when
+/// `[onnxruntime] spin` says so; a file ONNX Runtime cannot load is an input
+/// error naming it.
 pub fn open_session(
     env: &ort::environment::Environment,
     model: &Path,
     threads: usize,
 ) -> Result<Session> {
+    let spin = SPIN.load(Ordering::Relaxed);
     let session = Session::builder(env)
         .and_then(|b| b.with_intra_threads(threads.max(1)).map_err(Into::into))
+        .and_then(|b| b.with_intra_op_spinning(spin).map_err(Into::into))
+        .and_then(|b| b.with_inter_op_spinning(spin).map_err(Into::into))
         .and_then(|mut b| b.commit_from_file(model));
     session.map_err(|e| {
         InputError(format!(
@@ -106,6 +115,7 @@ pub fn init_runtime(cfg: &OnnxRuntimeConfig) -> Result<ort::environment::Environ
     if !cfg.sha256.is_empty() {
         verify(&lib, &cfg.sha256).map_err(|e| InputError(e.to_string()))?;
     }
+    SPIN.store(cfg.spin, Ordering::Relaxed);
     let mut slot = RUNTIME
         .lock()
         .map_err(|_| anyhow!("ONNX Runtime initialisation panicked earlier"))?;

@@ -35,6 +35,11 @@ pub trait MaskModel {
     /// Segmenter masks for `frame` (a keyframe): new prompts. Only the
     /// propagator uses them; `frame` is `None` when it no longer holds it.
     fn prompt(&mut self, _frame: Option<&FrameView>, _masks: &MasksView) {}
+
+    /// One line for the log at exit (e.g. how prompts were used).
+    fn summary(&self) -> Option<String> {
+        None
+    }
 }
 
 /// Frames a worker keeps borrowed (bounded by the frames topic's QoS).
@@ -44,9 +49,9 @@ type FrameSample = Sample<Svc, [u8], FrameHeader>;
 
 /// Runs a mask worker until SIGTERM.
 pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>) -> Result<()> {
-    let my_route = match role {
-        MaskSource::Segmenter => RouteKind::Segment,
-        _ => RouteKind::Propagate,
+    let mine = |kind: RouteKind| match role {
+        MaskSource::Segmenter => kind.segments(),
+        _ => kind.propagates(),
     };
     let frames = ctx.transport.slice_receiver::<FrameHeader>(Topic::Frames)?;
     let routes = ctx.transport.receiver::<Route>(Topic::Routes)?;
@@ -74,6 +79,9 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
     let mut not_held = 0u64;
     loop {
         if wait(&ws, Duration::from_secs(1))? == Wake::Terminate {
+            if let Some(summary) = model.summary() {
+                tracing::info!("{}: {summary}", role.as_str());
+            }
             if not_held > 0 {
                 tracing::info!(
                     "{}: {not_held} routed frames had been replaced by newer ones before their turn (real time: the supervisor counts them as dropped)",
@@ -110,7 +118,7 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
         }
         for r in routes.drain()? {
             tracing::debug!(seq = r.seq, kind = r.kind, held = held.len(), "route");
-            if RouteKind::from_u32(r.kind) == Some(my_route) {
+            if RouteKind::from_u32(r.kind).is_some_and(mine) {
                 pending.retain(|p| p.seq != r.seq);
                 pending.push_back(r);
             }

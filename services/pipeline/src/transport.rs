@@ -46,9 +46,11 @@ pub fn qos(topic: Topic) -> Qos {
             buffer: 4,
             borrowed: 4,
         },
+        // SLAM holds up to 3 sets (a frame segmented behind can have two,
+        // and the next frame's may arrive before it is tracked).
         Topic::Masks => Qos {
             buffer: 4,
-            borrowed: 2,
+            borrowed: 4,
         },
         Topic::Routes | Topic::Tracks => Qos {
             buffer: 64,

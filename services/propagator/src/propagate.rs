@@ -10,6 +10,9 @@
 //! segmenter result prompts afresh. Like SAM 2's memory, it propagates only
 //! the instances it was prompted with.
 
+use std::collections::VecDeque;
+use std::sync::Arc;
+
 use anyhow::Result;
 use nalgebra::{Matrix3, Vector3};
 use pipeline::mask_worker::MaskModel;
@@ -174,13 +177,25 @@ struct Object {
     motion: (f32, f32),
 }
 
+/// Frames whose pyramids the propagator keeps after propagating to them: a
+/// segmenter result for one of them (real time: it comes several frames
+/// late) is carried forward from its own image. 30 frames (~12 MB at
+/// 640x480) is a second at 30 fps, more than a loaded segmenter takes.
+const RECENT_FRAMES: usize = 30;
+
 /// The `lk` propagation backend.
 pub struct LkPropagator {
     params: PropagatorParams,
-    prev: Option<Pyramid>,
+    prev: Option<Arc<Pyramid>>,
     objects: Vec<Object>,
     width: usize,
     height: usize,
+    /// The pyramids of the last frames propagated to, by sequence number.
+    recent: VecDeque<(u64, Arc<Pyramid>)>,
+    /// Prompts that arrived after newer frames had been propagated.
+    prompts_behind: u64,
+    /// Prompts whose image was no longer at hand (ignored).
+    prompts_lost: u64,
 }
 
 impl LkPropagator {
@@ -191,7 +206,51 @@ impl LkPropagator {
             objects: Vec::new(),
             width: 0,
             height: 0,
+            recent: VecDeque::new(),
+            prompts_behind: 0,
+            prompts_lost: 0,
         }
+    }
+
+    /// Keeps the pyramid of the frame just propagated to as frame `seq`'s.
+    fn remember(&mut self, seq: u64) {
+        if let Some(prev) = &self.prev {
+            self.recent.retain(|(s, _)| *s != seq);
+            self.recent.push_back((seq, prev.clone()));
+            while self.recent.len() > RECENT_FRAMES {
+                self.recent.pop_front();
+            }
+        }
+    }
+
+    /// New prompts on a frame propagated to earlier (`seq`), when its
+    /// pyramid is still kept: the objects are followed from that image to
+    /// the next frame. False when it is not.
+    pub fn prompt_behind(&mut self, seq: u64, labels: &[u8], instances: &[Instance]) -> bool {
+        let Some(pyramid) = self
+            .recent
+            .iter()
+            .find(|(s, _)| *s == seq)
+            .map(|(_, p)| p.clone())
+        else {
+            return false;
+        };
+        self.set_objects(labels, instances);
+        self.prev = Some(pyramid);
+        true
+    }
+
+    fn set_objects(&mut self, labels: &[u8], instances: &[Instance]) {
+        self.objects = instances
+            .iter()
+            .enumerate()
+            .map(|(i, inst)| Object {
+                instance: *inst,
+                mask: labels.iter().map(|&l| l as usize == i + 1).collect(),
+                motion: (0.0, 0.0),
+            })
+            .filter(|o| o.mask.iter().any(|&m| m))
+            .collect();
     }
 
     /// New prompts: the keyframe image and its instance label image
@@ -206,20 +265,11 @@ impl LkPropagator {
     ) {
         self.width = width;
         self.height = height;
-        self.prev = Some(Pyramid::new(
+        self.prev = Some(Arc::new(Pyramid::new(
             Gray::from_rgb(rgb, width, height),
             self.params.pyramid_levels,
-        ));
-        self.objects = instances
-            .iter()
-            .enumerate()
-            .map(|(i, inst)| Object {
-                instance: *inst,
-                mask: labels.iter().map(|&l| l as usize == i + 1).collect(),
-                motion: (0.0, 0.0),
-            })
-            .filter(|o| o.mask.iter().any(|&m| m))
-            .collect();
+        )));
+        self.set_objects(labels, instances);
     }
 
     /// Number of objects still followed.
@@ -246,7 +296,7 @@ impl LkPropagator {
         else {
             // No prompt yet (or the frame size changed): nothing to follow.
             self.objects.clear();
-            self.prev = Some(cur);
+            self.prev = Some(Arc::new(cur));
             self.width = width;
             self.height = height;
             return Vec::new();
@@ -263,7 +313,7 @@ impl LkPropagator {
             }
         }
         self.objects = kept;
-        self.prev = Some(cur);
+        self.prev = Some(Arc::new(cur));
         let mut out = Vec::new();
         for (i, obj) in self.objects.iter_mut().enumerate().take(254) {
             let (mut x0, mut y0, mut x1, mut y1) = (width, height, 0, 0);
@@ -580,23 +630,36 @@ impl MaskModel for LkPropagator {
     }
 
     fn infer(&mut self, frame: &FrameView, labels: &mut [u8]) -> Result<Vec<Instance>> {
-        Ok(self.propagate(frame.rgb, frame.width(), frame.height(), labels))
+        let instances = self.propagate(frame.rgb, frame.width(), frame.height(), labels);
+        self.remember(frame.header.seq);
+        Ok(instances)
     }
 
     fn prompt(&mut self, frame: Option<&FrameView>, masks: &MasksView) {
-        match frame {
-            Some(f) => self.prompt_with(
-                f.rgb,
-                f.width(),
-                f.height(),
-                masks.labels,
-                masks.header.instances(),
-            ),
-            None => tracing::warn!(
-                seq = masks.header.seq,
-                "keyframe image no longer held; prompt ignored"
-            ),
+        let seq = masks.header.seq;
+        let (labels, instances) = (masks.labels, masks.header.instances());
+        // A prompt for a frame already propagated to (real time: the
+        // segmenter runs behind) starts from that frame's own image, which
+        // is kept; the next frame is then reached in one step.
+        let behind = self.recent.back().is_some_and(|(newest, _)| *newest >= seq);
+        if behind && self.prompt_behind(seq, labels, instances) {
+            self.prompts_behind += 1;
+            return;
         }
+        match frame {
+            Some(f) => self.prompt_with(f.rgb, f.width(), f.height(), labels, instances),
+            None => {
+                self.prompts_lost += 1;
+                tracing::warn!(seq, "keyframe image no longer held; prompt ignored");
+            }
+        }
+    }
+
+    fn summary(&self) -> Option<String> {
+        Some(format!(
+            "prompts carried forward from a kept frame: {}, ignored (image gone): {}",
+            self.prompts_behind, self.prompts_lost
+        ))
     }
 }
 

@@ -20,8 +20,8 @@ use pipeline::transport::{attach, qos, wait, waitset, Svc, Wake};
 use pipeline::views::{FrameView, MasksView};
 use shared_types::names::Topic;
 use shared_types::{
-    frame_flags, mask_flags, FrameHeader, MasksHeader, Route, RouteKind, ServiceKind, StageStamps,
-    Track, TrackState,
+    frame_flags, mask_flags, FrameHeader, MaskSource, MasksHeader, Route, RouteKind, ServiceKind,
+    StageStamps, Track, TrackState,
 };
 use slam::rgbd_tracker::{MapFiles, RgbdTracker};
 use slam::scripted::ScriptedTracker;
@@ -170,7 +170,19 @@ fn run(ctx: ServiceContext, map_out: Option<&std::path::Path>, files: MapFiles) 
             let Some(sample) = masks.next_sample()? else {
                 break;
             };
-            let seq = sample.user_header().seq;
+            let (seq, source) = (sample.user_header().seq, sample.user_header().source);
+            if st.last.is_some_and(|l| seq <= l.seq) {
+                // Real time: the segmenter's result for a frame already
+                // tracked with propagated masks (the propagator takes it as
+                // its prompt), or a propagator's after the segmenter's.
+                continue;
+            }
+            let segmented = |m: &MasksSample| {
+                m.user_header().seq == seq && m.user_header().source == MaskSource::Segmenter as u32
+            };
+            if source != MaskSource::Segmenter as u32 && st.masks.iter().any(segmented) {
+                continue; // a frame's segmenter masks beat its propagated ones
+            }
             st.masks.retain(|m| m.user_header().seq != seq);
             st.masks.push_back(sample);
         }

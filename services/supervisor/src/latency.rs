@@ -51,12 +51,14 @@ pub fn stage_ms(r: &FrameRow) -> [Option<f64>; STAGES.len()] {
         span(s.published_ns, s.slam_received_ns),
         span(s.track_done_ns, r.track_received_ns),
         span(s.capture_ns, r.track_received_ns),
-        if r.route == "segment" {
+        // By whose masks the frame was tracked (a frame segmented behind is
+        // tracked with the propagator's).
+        if r.mask_source == "segmenter" {
             span(s.masks_start_ns, s.masks_done_ns)
         } else {
             None
         },
-        if r.route == "propagate" {
+        if r.mask_source == "propagator" {
             span(s.masks_start_ns, s.masks_done_ns)
         } else {
             None
@@ -151,7 +153,7 @@ pub fn trace_json(rows: &[FrameRow]) -> serde_json::Value {
         let s = &r.stamps;
         complete(1, "decode", s.capture_ns, s.published_ns, r);
         complete(2, "route", s.published_ns, s.routed_ns, r);
-        let worker = if r.route == "segment" { 3 } else { 4 };
+        let worker = if r.mask_source == "segmenter" { 3 } else { 4 };
         complete(
             worker,
             r.route.as_str(),
@@ -174,6 +176,7 @@ mod tests {
         FrameRow {
             seq,
             route: "segment".into(),
+            mask_source: "segmenter".into(),
             state: "ok".into(),
             stamps: StageStamps {
                 capture_ns: base,

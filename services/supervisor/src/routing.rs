@@ -1,10 +1,21 @@
 //! The routing rule (DESIGN section 3): which worker makes a frame's masks.
 //!
-//! A frame goes to the segmenter when SLAM asked for a keyframe with its
-//! previous Track, when no segmenter masks exist yet, or when the newest
-//! segmenter run is older than `max_segment_age` frames; otherwise to the
-//! propagator. Workers that were given up on are routed around; with none
-//! left the frame goes on unmasked (Skip).
+//! Lockstep: a frame goes to the segmenter when SLAM asked for a keyframe
+//! with its previous Track, when no segmenter masks exist yet, or when the
+//! newest segmenter run is older than `max_segment_age` frames; otherwise to
+//! the propagator. SLAM waits for a segmented frame's masks.
+//!
+//! Real time: tracking never waits for the segmenter (the design of the
+//! CPU-real-time dynamic SLAMs such as NGD-SLAM). Every frame is masked by
+//! the propagator; when a segment is wanted (the same three reasons) and the
+//! segmenter is idle, the frame is also segmented in the background
+//! (`SegmentBehind`): at most one frame is at the segmenter at a time, and its
+//! result re-prompts the propagator, which carries it forward to the frame of
+//! the moment. Only the very first frames wait, for the first segmenter
+//! result (there is nothing to propagate before it).
+//!
+//! Workers that were given up on are routed around; with none left the frame
+//! goes on unmasked (Skip).
 
 use pipeline::config::RoutingConfig;
 use shared_types::RouteKind;
@@ -12,10 +23,16 @@ use shared_types::RouteKind;
 #[derive(Debug, Clone)]
 pub struct Router {
     policy: RoutingConfig,
+    /// Real time: segment in the background (see the module docs).
+    background: bool,
     /// SLAM's keyframe flag from the latest Track.
     next_needs_keyframe: bool,
     /// Newest frame routed to the segmenter.
     last_segment: Option<u64>,
+    /// Real time: the frame at the segmenter now, if any.
+    segmenting: Option<u64>,
+    /// Real time: a segmenter result has arrived (the propagator has a prompt).
+    prompted: bool,
 }
 
 /// Which workers can still take frames (a worker that is restarting counts
@@ -27,11 +44,23 @@ pub struct Availability {
 }
 
 impl Router {
+    /// The lockstep rule.
     pub fn new(policy: RoutingConfig) -> Self {
         Self {
             policy,
+            background: false,
             next_needs_keyframe: true,
             last_segment: None,
+            segmenting: None,
+            prompted: false,
+        }
+    }
+
+    /// The real-time rule: the segmenter runs behind the frame path.
+    pub fn realtime(policy: RoutingConfig) -> Self {
+        Self {
+            background: true,
+            ..Self::new(policy)
         }
     }
 
@@ -46,15 +75,39 @@ impl Router {
         self.next_needs_keyframe = next_needs_keyframe;
     }
 
-    /// Decides the route of frame `seq` and remembers it.
-    pub fn route(&mut self, seq: u64, bad_input: bool, workers: Availability) -> RouteKind {
+    /// A segmenter result for frame `seq` was published: the segmenter is
+    /// free again and the propagator has a prompt.
+    pub fn on_segmenter_result(&mut self, seq: u64) {
+        if self.segmenting.is_some_and(|s| s <= seq) {
+            self.segmenting = None;
+        }
+        self.prompted = true;
+    }
+
+    /// A worker died: the frame it was segmenting will not come back.
+    pub fn on_worker_lost(&mut self) {
+        self.segmenting = None;
+    }
+
+    /// Frames after which a background segment that never answered (its
+    /// frame was replaced before the segmenter's turn) is given up.
+    fn segment_timeout(&self) -> u64 {
+        (4 * self.policy.max_segment_age).max(60)
+    }
+
+    /// Decides the route of frame `seq` and remembers it; `None` (real time
+    /// only): not yet, the first segmenter result is still on its way.
+    pub fn route(&mut self, seq: u64, bad_input: bool, workers: Availability) -> Option<RouteKind> {
         if bad_input || self.policy.no_masks {
-            return RouteKind::Skip;
+            return Some(RouteKind::Skip);
         }
         let stale = self
             .last_segment
             .is_none_or(|last| seq.saturating_sub(last) > self.policy.max_segment_age);
         let want_segment = self.policy.segment_every_frame || self.next_needs_keyframe || stale;
+        if self.background {
+            return self.route_behind(seq, want_segment, workers);
+        }
         let kind = if want_segment && workers.segmenter {
             RouteKind::Segment
         } else if workers.propagator && self.last_segment.is_some() {
@@ -67,7 +120,45 @@ impl Router {
         if kind == RouteKind::Segment {
             self.last_segment = Some(seq);
         }
-        kind
+        Some(kind)
+    }
+
+    fn route_behind(
+        &mut self,
+        seq: u64,
+        want_segment: bool,
+        workers: Availability,
+    ) -> Option<RouteKind> {
+        if self
+            .segmenting
+            .is_some_and(|s| seq.saturating_sub(s) > self.segment_timeout())
+        {
+            tracing::warn!(
+                seq = self.segmenting,
+                "no segmenter result for this frame; segmenting another"
+            );
+            self.segmenting = None;
+        }
+        // Without a propagator there is nothing to mask the frames between.
+        let can_propagate = workers.propagator && (self.prompted || !workers.segmenter);
+        // Without a propagator every frame's masks are the segmenter's.
+        let want_segment = want_segment || !can_propagate;
+        if want_segment && workers.segmenter && self.segmenting.is_none() {
+            self.segmenting = Some(seq);
+            self.last_segment = Some(seq);
+            return Some(if can_propagate {
+                RouteKind::SegmentBehind
+            } else {
+                RouteKind::Segment
+            });
+        }
+        if can_propagate && self.last_segment.is_some() {
+            Some(RouteKind::Propagate)
+        } else if workers.segmenter {
+            None // the segmenter is busy; this frame waits (or is dropped for a newer one)
+        } else {
+            Some(RouteKind::Skip)
+        }
     }
 }
 
@@ -84,16 +175,23 @@ mod tests {
         Router::new(RoutingConfig::default())
     }
 
+    impl Router {
+        /// A decided route (lockstep always decides).
+        fn route_now(&mut self, seq: u64, bad: bool, workers: Availability) -> RouteKind {
+            self.route(seq, bad, workers).expect("decided")
+        }
+    }
+
     #[test]
     fn first_frame_is_segmented_then_flag_drives_routing() {
         let mut r = router();
-        assert_eq!(r.route(0, false, BOTH), RouteKind::Segment);
+        assert_eq!(r.route_now(0, false, BOTH), RouteKind::Segment);
         r.on_track(false);
-        assert_eq!(r.route(1, false, BOTH), RouteKind::Propagate);
+        assert_eq!(r.route_now(1, false, BOTH), RouteKind::Propagate);
         r.on_track(true);
-        assert_eq!(r.route(2, false, BOTH), RouteKind::Segment);
+        assert_eq!(r.route_now(2, false, BOTH), RouteKind::Segment);
         r.on_track(false);
-        assert_eq!(r.route(3, false, BOTH), RouteKind::Propagate);
+        assert_eq!(r.route_now(3, false, BOTH), RouteKind::Propagate);
     }
 
     #[test]
@@ -102,9 +200,9 @@ mod tests {
             max_segment_age: 3,
             ..Default::default()
         });
-        assert_eq!(r.route(0, false, BOTH), RouteKind::Segment);
+        assert_eq!(r.route_now(0, false, BOTH), RouteKind::Segment);
         r.on_track(false);
-        let kinds: Vec<_> = (1..=5).map(|s| r.route(s, false, BOTH)).collect();
+        let kinds: Vec<_> = (1..=5).map(|s| r.route_now(s, false, BOTH)).collect();
         assert_eq!(
             kinds,
             vec![
@@ -120,12 +218,12 @@ mod tests {
     #[test]
     fn bad_frames_and_no_masks_skip() {
         let mut r = router();
-        assert_eq!(r.route(0, true, BOTH), RouteKind::Skip);
+        assert_eq!(r.route_now(0, true, BOTH), RouteKind::Skip);
         let mut r = Router::new(RoutingConfig {
             no_masks: true,
             ..Default::default()
         });
-        assert_eq!(r.route(0, false, BOTH), RouteKind::Skip);
+        assert_eq!(r.route_now(0, false, BOTH), RouteKind::Skip);
     }
 
     #[test]
@@ -136,21 +234,21 @@ mod tests {
             propagator: true,
         };
         // Nothing to propagate from yet: unmasked.
-        assert_eq!(r.route(0, false, no_seg), RouteKind::Skip);
-        assert_eq!(r.route(1, false, BOTH), RouteKind::Segment);
+        assert_eq!(r.route_now(0, false, no_seg), RouteKind::Skip);
+        assert_eq!(r.route_now(1, false, BOTH), RouteKind::Segment);
         r.on_track(true);
-        assert_eq!(r.route(2, false, no_seg), RouteKind::Propagate);
+        assert_eq!(r.route_now(2, false, no_seg), RouteKind::Propagate);
         let no_prop = Availability {
             segmenter: true,
             propagator: false,
         };
         r.on_track(false);
-        assert_eq!(r.route(3, false, no_prop), RouteKind::Segment);
+        assert_eq!(r.route_now(3, false, no_prop), RouteKind::Segment);
         let none = Availability {
             segmenter: false,
             propagator: false,
         };
-        assert_eq!(r.route(4, false, none), RouteKind::Skip);
+        assert_eq!(r.route_now(4, false, none), RouteKind::Skip);
     }
 
     #[test]
@@ -160,6 +258,68 @@ mod tests {
             ..Default::default()
         });
         r.on_track(false);
-        assert!((0..10).all(|s| r.route(s, false, BOTH) == RouteKind::Segment));
+        assert!((0..10).all(|s| r.route_now(s, false, BOTH) == RouteKind::Segment));
+    }
+
+    #[test]
+    fn real_time_never_waits_for_the_segmenter_after_its_first_result() {
+        let mut r = Router::realtime(RoutingConfig::default());
+        // The very first frame is segmented; the frames after it wait for
+        // that first result (nothing to propagate yet).
+        assert_eq!(r.route(0, false, BOTH), Some(RouteKind::Segment));
+        assert_eq!(r.route(1, false, BOTH), None);
+        r.on_segmenter_result(0);
+        r.on_track(true);
+        // SLAM wants a keyframe: the segmenter is idle, so the frame is
+        // segmented behind the propagator's masks.
+        assert_eq!(r.route(2, false, BOTH), Some(RouteKind::SegmentBehind));
+        // While it runs, frames go to the propagator only, however much a
+        // keyframe is wanted: one frame at a time at the segmenter.
+        for seq in 3..8 {
+            assert_eq!(r.route(seq, false, BOTH), Some(RouteKind::Propagate));
+        }
+        r.on_segmenter_result(2);
+        assert_eq!(r.route(8, false, BOTH), Some(RouteKind::SegmentBehind));
+        // A segmenter that never answers is given up after a while.
+        r.on_track(false);
+        let timeout = r.segment_timeout();
+        assert_eq!(
+            r.route(8 + timeout, false, BOTH),
+            Some(RouteKind::Propagate)
+        );
+        assert_eq!(
+            r.route(9 + timeout, false, BOTH),
+            Some(RouteKind::SegmentBehind)
+        );
+        // A dead worker frees the segmenter too.
+        r.on_track(true);
+        assert_eq!(
+            r.route(10 + timeout, false, BOTH),
+            Some(RouteKind::Propagate)
+        );
+        r.on_worker_lost();
+        assert_eq!(
+            r.route(11 + timeout, false, BOTH),
+            Some(RouteKind::SegmentBehind)
+        );
+    }
+
+    #[test]
+    fn real_time_without_a_propagator_segments_whenever_the_segmenter_is_idle() {
+        let mut r = Router::realtime(RoutingConfig::default());
+        let no_prop = Availability {
+            segmenter: true,
+            propagator: false,
+        };
+        assert_eq!(r.route(0, false, no_prop), Some(RouteKind::Segment));
+        assert_eq!(r.route(1, false, no_prop), None);
+        r.on_segmenter_result(0);
+        r.on_track(false);
+        assert_eq!(r.route(2, false, no_prop), Some(RouteKind::Segment));
+        let none = Availability {
+            segmenter: false,
+            propagator: false,
+        };
+        assert_eq!(r.route(3, false, none), Some(RouteKind::Skip));
     }
 }

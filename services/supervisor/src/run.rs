@@ -393,6 +393,11 @@ impl Supervisor {
             .map(|(&s, _)| s)
             .collect();
         waiting.sort_unstable();
+        if !lockstep {
+            // Real time: the newest frame first (it is the one worth masking
+            // when the segmenter can take only one).
+            waiting.reverse();
+        }
         for seq in waiting {
             if lockstep && seq > 0 && !self.rows.contains_key(&(seq - 1)) {
                 break;
@@ -403,7 +408,9 @@ impl Supervisor {
                 .pending
                 .get_mut(&seq)
                 .expect("waiting frame is pending");
-            let kind = self.router.route(seq, p.bad, availability);
+            let Some(kind) = self.router.route(seq, p.bad, availability) else {
+                continue; // real time: waits for the first segmenter result
+            };
             p.route = Some(kind);
             if kind == RouteKind::Skip && !p.bad && !no_masks {
                 p.note = "unmasked: no mask service available".into();
@@ -424,7 +431,9 @@ impl Supervisor {
             .iter()
             .filter(|(_, p)| match p.route {
                 Some(RouteKind::Segment) => !availability.segmenter,
-                Some(RouteKind::Propagate) => !availability.propagator,
+                // Tracked with the propagator's masks; the segmenter's only
+                // re-prompt the propagator.
+                Some(RouteKind::Propagate | RouteKind::SegmentBehind) => !availability.propagator,
                 _ => false,
             })
             .map(|(&seq, _)| seq)
@@ -660,12 +669,15 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
     let _lock = run_dir::RunLock::acquire(names.run_id())?;
     clean_previous(&run_dir, &names)?;
     let (log, old_rows) = FrameLog::open(&run_dir)?;
-    let mut router = Router::new(config.routing.clone());
+    let mut router = match config.run.mode {
+        ClockMode::Lockstep => Router::new(config.routing.clone()),
+        ClockMode::Realtime => Router::realtime(config.routing.clone()),
+    };
     if let Some(last) = old_rows.last() {
         let last_segment = old_rows
             .iter()
             .rev()
-            .find(|r| r.route == "segment")
+            .find(|r| r.route == "segment" || r.route == "segment-behind")
             .map(|r| r.seq);
         router.resume(last.next_keyframe, last_segment);
         tracing::info!(frames = old_rows.len(), "resuming run {}", info.run_id);
@@ -829,7 +841,12 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
         masks.clear_wakeups();
         while let Some(sample) = masks.next_sample()? {
             match MasksView::new(sample.user_header(), sample.payload()) {
-                Ok(view) => recorder.record(&view),
+                Ok(view) => {
+                    if view.source() == MaskSource::Segmenter {
+                        sup.router.on_segmenter_result(view.header.seq);
+                    }
+                    recorder.record(&view)
+                }
                 Err(e) => tracing::warn!("not recording masks: {e:#}"),
             }
         }
@@ -842,6 +859,7 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
         sup.route_ready(&routes)?;
         // Services only fail when one dies: what follows from it is decided then.
         if sup.watch_children(false)? {
+            sup.router.on_worker_lost();
             sup.reroute_orphans(&routes)?;
             if sup.config.run.require_masks {
                 if let Some(reason) = sup.degraded().first() {

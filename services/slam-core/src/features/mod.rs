@@ -2,6 +2,7 @@
 //! `kornia` feature), the grid keypoints are searched in, and the dynamic
 //! mask applied at detection.
 
+pub mod fast;
 pub mod grid;
 #[cfg(feature = "kornia")]
 pub mod kornia_orb;

@@ -10,6 +10,7 @@
 
 use std::borrow::Cow;
 
+use super::fast::Fast;
 use crate::rng::SplitMix64;
 
 /// One keypoint, in level-0 pixel coordinates of the (distorted) image.
@@ -99,27 +100,51 @@ impl GrayU8 {
         }
     }
 
-    #[inline]
-    fn at(&self, x: usize, y: usize) -> u8 {
-        self.data[y * self.width + x]
-    }
-
-    /// Bilinear resize to `w x h`.
+    /// Bilinear resize to `w x h` (pixel centres aligned): each source row
+    /// is interpolated horizontally once (every output row blends two of
+    /// them), then the rows are blended in contiguous, vectorisable passes.
+    /// Coordinates are never negative, so `as usize` is the floor.
     fn resized(&self, w: usize, h: usize) -> Self {
         let (sx, sy) = (self.width as f32 / w as f32, self.height as f32 / h as f32);
+        let taps = |i: usize, s: f32, n: usize| {
+            let f = ((i as f32 + 0.5) * s - 0.5).clamp(0.0, (n - 1) as f32);
+            let i0 = f as usize;
+            (i0, (i0 + 1).min(n - 1), f - i0 as f32)
+        };
+        let columns: Vec<(usize, usize, f32)> = (0..w).map(|x| taps(x, sx, self.width)).collect();
+        let horizontal = |y: usize, out: &mut Vec<f32>| {
+            let row = &self.data[y * self.width..(y + 1) * self.width];
+            out.clear();
+            out.extend(
+                columns
+                    .iter()
+                    .map(|&(x0, x1, wx)| row[x0] as f32 * (1.0 - wx) + row[x1] as f32 * wx),
+            );
+        };
+        // The two source rows of the previous output row, by source index.
+        let (mut top, mut bot) = (Vec::with_capacity(w), Vec::with_capacity(w));
+        let (mut top_y, mut bot_y) = (usize::MAX, usize::MAX);
         let mut data = Vec::with_capacity(w * h);
         for y in 0..h {
-            let fy = ((y as f32 + 0.5) * sy - 0.5).clamp(0.0, (self.height - 1) as f32);
-            let (y0, wy) = (fy as usize, fy - fy.floor());
-            let y1 = (y0 + 1).min(self.height - 1);
-            for x in 0..w {
-                let fx = ((x as f32 + 0.5) * sx - 0.5).clamp(0.0, (self.width - 1) as f32);
-                let (x0, wx) = (fx as usize, fx - fx.floor());
-                let x1 = (x0 + 1).min(self.width - 1);
-                let top = self.at(x0, y0) as f32 * (1.0 - wx) + self.at(x1, y0) as f32 * wx;
-                let bot = self.at(x0, y1) as f32 * (1.0 - wx) + self.at(x1, y1) as f32 * wx;
-                data.push((top * (1.0 - wy) + bot * wy + 0.5) as u8);
+            let (y0, y1, wy) = taps(y, sy, self.height);
+            if y0 != top_y {
+                if y0 == bot_y {
+                    std::mem::swap(&mut top, &mut bot);
+                    bot_y = usize::MAX;
+                } else {
+                    horizontal(y0, &mut top);
+                }
+                top_y = y0;
             }
+            if y1 != bot_y {
+                horizontal(y1, &mut bot);
+                bot_y = y1;
+            }
+            data.extend(
+                top.iter()
+                    .zip(&bot)
+                    .map(|(&t, &b)| (t * (1.0 - wy) + b * wy + 0.5) as u8),
+            );
         }
         Self {
             width: w,
@@ -129,40 +154,39 @@ impl GrayU8 {
     }
 
     /// Separable [1 4 6 4 1]/16 smoothing (BRIEF tests are noise-sensitive),
-    /// borders replicated. The interior runs without index clamping.
+    /// borders replicated. Sums fit `u16` (16 x 16 x 255 + 128 < 65536), so
+    /// the interior loops vectorise 8 or 16 pixels wide.
     fn smoothed(&self) -> Self {
         let (w, h) = (self.width, self.height);
-        let tap = |get: &dyn Fn(isize) -> u32, i: isize| {
-            get(i - 2) + 4 * get(i - 1) + 6 * get(i) + 4 * get(i + 1) + get(i + 2)
-        };
-        let mut tmp = vec![0u32; w * h];
-        for y in 0..h {
-            let row = &self.data[y * w..(y + 1) * w];
-            let out = &mut tmp[y * w..(y + 1) * w];
-            let clamped = |i: isize| row[i.clamp(0, w as isize - 1) as usize] as u32;
-            for x in 0..w {
-                out[x] = if x >= 2 && x + 2 < w {
-                    row[x - 2] as u32
-                        + 4 * row[x - 1] as u32
-                        + 6 * row[x] as u32
-                        + 4 * row[x + 1] as u32
-                        + row[x + 2] as u32
-                } else {
-                    tap(&clamped, x as isize)
-                };
+        let mut tmp = vec![0u16; w * h];
+        for (row, out) in self.data.chunks_exact(w).zip(tmp.chunks_exact_mut(w)) {
+            let at = |i: isize| row[i.clamp(0, w as isize - 1) as usize] as u16;
+            let tap = |i: isize| at(i - 2) + 4 * at(i - 1) + 6 * at(i) + 4 * at(i + 1) + at(i + 2);
+            for (i, o) in out.iter_mut().enumerate() {
+                if i < 2 || i + 2 >= w {
+                    *o = tap(i as isize);
+                }
+            }
+            if w > 4 {
+                for (o, win) in out[2..w - 2].iter_mut().zip(row.windows(5)) {
+                    *o = win[0] as u16
+                        + 4 * win[1] as u16
+                        + 6 * win[2] as u16
+                        + 4 * win[3] as u16
+                        + win[4] as u16;
+                }
             }
         }
         let mut data = vec![0u8; w * h];
-        for y in 0..h {
-            let r = |dy: isize| (y as isize + dy).clamp(0, h as isize - 1) as usize * w;
-            let rows = [r(-2), r(-1), r(0), r(1), r(2)];
-            for x in 0..w {
-                let acc = tmp[rows[0] + x]
-                    + 4 * tmp[rows[1] + x]
-                    + 6 * tmp[rows[2] + x]
-                    + 4 * tmp[rows[3] + x]
-                    + tmp[rows[4] + x];
-                data[y * w + x] = ((acc + 128) >> 8) as u8;
+        for (y, out) in data.chunks_exact_mut(w).enumerate() {
+            let row = |dy: isize| {
+                let r = (y as isize + dy).clamp(0, h as isize - 1) as usize;
+                &tmp[r * w..(r + 1) * w]
+            };
+            let (a, b, c, d, e) = (row(-2), row(-1), row(0), row(1), row(2));
+            for (x, o) in out.iter_mut().enumerate() {
+                let acc = a[x] + 4 * b[x] + 6 * c[x] + 4 * d[x] + e[x];
+                *o = ((acc as u32 + 128) >> 8) as u8;
             }
         }
         Self {
@@ -171,63 +195,6 @@ impl GrayU8 {
             data,
         }
     }
-}
-
-const CIRCLE: [(isize, isize); 16] = [
-    (0, -3),
-    (1, -3),
-    (2, -2),
-    (3, -1),
-    (3, 0),
-    (3, 1),
-    (2, 2),
-    (1, 3),
-    (0, 3),
-    (-1, 3),
-    (-2, 2),
-    (-3, 1),
-    (-3, 0),
-    (-3, -1),
-    (-2, -2),
-    (-1, -3),
-];
-
-/// FAST-9 score at (x, y) for threshold `t`: the sum of absolute
-/// differences beyond `t` over the circle when 9 contiguous pixels are all
-/// brighter or all darker, else 0.
-#[inline]
-fn fast_score(img: &GrayU8, x: usize, y: usize, t: i16) -> f32 {
-    let w = img.width as isize;
-    let d = &img.data;
-    let centre = y * img.width + x;
-    let p = d[centre] as i16;
-    let diff = |k: usize| {
-        let (dx, dy) = CIRCLE[k];
-        d[(centre as isize + dy * w + dx) as usize] as i16 - p
-    };
-    // Quick rejection on the compass points (at least 2 of 4 must pass)
-    // before the other 12 pixels are read: most pixels end here.
-    let compass = [diff(0), diff(4), diff(8), diff(12)];
-    let bright = compass.iter().filter(|&&v| v > t).count();
-    let dark = compass.iter().filter(|&&v| v < -t).count();
-    if bright < 2 && dark < 2 {
-        return 0.0;
-    }
-    let v: [i16; 16] = std::array::from_fn(diff);
-    for sign in [1i16, -1] {
-        let mut run = 0;
-        for i in 0..25 {
-            if sign * v[i % 16] > t {
-                run += 1;
-                if run >= 9 {
-                    return v.iter().map(|&d| ((sign * d) - t).max(0) as f32).sum();
-                }
-            } else {
-                run = 0;
-            }
-        }
-    }
-    0.0
 }
 
 /// Border kept free at every level: the rotated 31x31 BRIEF patch and the
@@ -291,7 +258,9 @@ fn pattern() -> Vec<[(f32, f32); 2]> {
 /// The extractor: holds the fixed BRIEF pattern.
 pub struct OrbExtractor {
     pub params: OrbParams,
-    pattern: Vec<[(f32, f32); 2]>,
+    /// The pattern's points, test after test (first, second, first, ...).
+    pattern_x: Vec<f32>,
+    pattern_y: Vec<f32>,
     disc: [isize; 16],
 }
 
@@ -299,7 +268,8 @@ impl OrbExtractor {
     pub fn new(params: OrbParams) -> Self {
         Self {
             params,
-            pattern: pattern(),
+            pattern_x: pattern().iter().flatten().map(|p| p.0).collect(),
+            pattern_y: pattern().iter().flatten().map(|p| p.1).collect(),
             disc: disc_half_widths(),
         }
     }
@@ -416,21 +386,23 @@ impl OrbExtractor {
         let mut cells: Vec<Vec<(usize, usize, f32)>> = Vec::new();
         let mut rejected = 0;
         let mut scores = vec![0f32; w * h];
+        let mut fast = Fast::new(img);
+        let (high, low) = (self.params.fast_threshold, self.params.fast_min_threshold);
         for cy in (BORDER..h - BORDER).step_by(CELL) {
+            let y1 = (cy + CELL).min(h - BORDER);
+            // The high threshold over the band's whole rows (long spans
+            // vectorise), then the low one in the cells left without a corner.
+            for y in cy..y1 {
+                fast.score_row(y, BORDER, w - BORDER, high, &mut scores[y * w + BORDER..]);
+            }
             for cx in (BORDER..w - BORDER).step_by(CELL) {
-                let (x1, y1) = ((cx + CELL).min(w - BORDER), (cy + CELL).min(h - BORDER));
-                for t in [self.params.fast_threshold, self.params.fast_min_threshold] {
-                    let mut any = false;
-                    for y in cy..y1 {
-                        for x in cx..x1 {
-                            let s = fast_score(img, x, y, t as i16);
-                            scores[y * w + x] = s;
-                            any |= s > 0.0;
-                        }
-                    }
-                    if any {
-                        break;
-                    }
+                let x1 = (cx + CELL).min(w - BORDER);
+                let cell_rows = || (cy..y1).map(|y| &scores[y * w + cx..y * w + x1]);
+                if cell_rows().any(|row| row.iter().any(|&s| s > 0.0)) {
+                    continue;
+                }
+                for y in cy..y1 {
+                    fast.score_row(y, cx, x1, low, &mut scores[y * w + cx..]);
                 }
             }
         }
@@ -493,35 +465,55 @@ impl OrbExtractor {
         (out, rejected)
     }
 
+    /// Intensity-centroid angle over the radius-15 disc, one row span at a
+    /// time (the sums are exact integers, in any order).
     fn orientation(&self, img: &GrayU8, x: usize, y: usize) -> f32 {
-        let (mut m01, mut m10) = (0i64, 0i64);
+        let (mut m01, mut m10) = (0i32, 0i32);
         for dy in -HALF_PATCH..=HALF_PATCH {
             let half = self.disc[dy.unsigned_abs()];
-            let yy = (y as isize + dy) as usize;
-            for dx in -half..=half {
-                let v = img.at((x as isize + dx) as usize, yy) as i64;
-                m10 += dx as i64 * v;
-                m01 += dy as i64 * v;
+            let start = (y as isize + dy) as usize * img.width + x - half as usize;
+            let span = &img.data[start..=start + 2 * half as usize];
+            let (mut sum, mut moment) = (0i32, 0i32);
+            for (dx, &v) in (-half as i32..).zip(span) {
+                sum += v as i32;
+                moment += dx * v as i32;
             }
+            m10 += moment;
+            m01 += dy as i32 * sum;
         }
         (m01 as f32).atan2(m10 as f32)
     }
 
+    /// Rotated BRIEF: the pattern's 512 points rotated by `angle` into
+    /// pixel offsets in one vectorisable pass, then 256 comparisons.
     fn describe(&self, smooth: &GrayU8, x: usize, y: usize, angle: f32) -> Descriptor {
         let (s, c) = angle.sin_cos();
-        let at = |(px, py): (f32, f32)| {
-            let rx = (c * px - s * py).round() as isize;
-            let ry = (s * px + c * py).round() as isize;
-            smooth.at((x as isize + rx) as usize, (y as isize + ry) as usize)
-        };
+        let w = smooth.width as i32;
+        let mut offsets = [0i32; 512];
+        for ((o, &px), &py) in offsets.iter_mut().zip(&self.pattern_x).zip(&self.pattern_y) {
+            *o = round_half_away(s * px + c * py) * w + round_half_away(c * px - s * py);
+        }
+        let centre = (y * smooth.width + x) as isize;
+        let at = |o: i32| smooth.data[(centre + o as isize) as usize];
         let mut d = [0u64; 4];
-        for (i, [a, b]) in self.pattern.iter().enumerate() {
-            if at(*a) < at(*b) {
-                d[i / 64] |= 1 << (i % 64);
-            }
+        for (i, pair) in offsets.chunks_exact(2).enumerate() {
+            // A data-dependent branch here would be mispredicted half the time.
+            d[i / 64] |= ((at(pair[0]) < at(pair[1])) as u64) << (i % 64);
         }
         d
     }
+}
+
+/// `v.round()` (half away from zero) for |v| < 2^23 without the libm call
+/// that `f32::round` is on x86-64 (SSE4.1 has no such rounding mode): the
+/// truncation and the fraction are exact in that range.
+#[inline]
+fn round_half_away(v: f32) -> i32 {
+    let t = v as i32;
+    let fraction = v - t as f32;
+    // Comparisons as integers, not branches: the fractions of the rotated
+    // pattern are random, a branch would be mispredicted half the time.
+    t + (fraction >= 0.5) as i32 - (fraction <= -0.5) as i32
 }
 
 #[cfg(test)]
@@ -590,6 +582,17 @@ mod tests {
             total > 50 && good as f32 > 0.8 * total as f32,
             "{good}/{total}"
         );
+    }
+
+    #[test]
+    fn rounding_without_libm_is_f32_round() {
+        let mut v = -40.0f32;
+        while v <= 40.0 {
+            for x in [v, v.next_up(), v.next_down()] {
+                assert_eq!(round_half_away(x), x.round() as i32, "{x}");
+            }
+            v += 0.125;
+        }
     }
 
     #[test]

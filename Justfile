@@ -81,6 +81,10 @@ bench-models: build setup
 bench-slam dataset=tum *args="": build
     ./target/release/slam-bench "{{dataset}}" {{args}}
 
+# The whole pipeline in real time on the shared sequence: 30 and 60 fps, each without and with 2 busy processes pinned to the cores; tracked fps, drops, end-to-end p50/p99, masked share, ATE next to lockstep's (writes bench-results/realtime.json).
+bench-realtime *args="": build setup
+    ./target/release/realtime-bench {{args}}
+
 # Our ORB extractor against kornia-imgproc's on the same frames and tracker (own build folder: target/kornia).
 bench-orb dataset=tum *args="":
     cargo build --release -p slam --features kornia --bin slam-bench --target-dir target/kornia

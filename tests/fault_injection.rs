@@ -401,8 +401,8 @@ fn the_real_slam_killed_again_and_again_goes_on_in_one_world_frame() {
             run_id: &run_id,
             resume_args: &resume_args,
             log: &log,
-            // Spread over the run (about 30 s of frames at 10 fps here).
-            pause_ms: (200, 1200),
+            // Spread over the run (about 20 s of frames at 15 fps here).
+            pause_ms: (100, 700),
         },
         Duration::from_secs(400),
         |kills, rng| {

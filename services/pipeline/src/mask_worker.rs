@@ -36,6 +36,11 @@ pub trait MaskModel {
     /// propagator uses them; `frame` is `None` when it no longer holds it.
     fn prompt(&mut self, _frame: Option<&FrameView>, _masks: &MasksView) {}
 
+    /// A frame the segmenter is making masks for (the propagator's future
+    /// prompt): keep what prompting on it will need, in case the frame is
+    /// no longer held when the masks come.
+    fn keep(&mut self, _frame: &FrameView) {}
+
     /// One line for the log at exit (e.g. how prompts were used).
     fn summary(&self) -> Option<String> {
         None
@@ -77,8 +82,10 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
     // Routed frames already replaced by newer ones (real time): counted and
     // said once at the end instead of a warning per frame.
     let mut not_held = 0u64;
+    let mut published = 0u64;
     loop {
         if wait(&ws, Duration::from_secs(1))? == Wake::Terminate {
+            tracing::info!("{}: masks published: {published}", role.as_str());
             if let Some(summary) = model.summary() {
                 tracing::info!("{}: {summary}", role.as_str());
             }
@@ -118,7 +125,17 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
         }
         for r in routes.drain()? {
             tracing::debug!(seq = r.seq, kind = r.kind, held = held.len(), "route");
-            if RouteKind::from_u32(r.kind).is_some_and(mine) {
+            let kind = RouteKind::from_u32(r.kind);
+            if role == MaskSource::Propagator && kind == Some(RouteKind::Segment) {
+                if let Some(frame) = held
+                    .iter()
+                    .find(|s| s.user_header().seq == r.seq)
+                    .and_then(|s| FrameView::new(s.user_header(), s.payload()).ok())
+                {
+                    model.keep(&frame);
+                }
+            }
+            if kind.is_some_and(mine) {
                 pending.retain(|p| p.seq != r.seq);
                 pending.push_back(r);
             }
@@ -148,6 +165,7 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
             pending.pop_front();
             tracing::debug!(seq = route.seq, "making masks");
             publish_masks(&masks_out, &mut *model, role, &route, sample)?;
+            published += 1;
         }
     }
 }

@@ -192,6 +192,8 @@ pub struct LkPropagator {
     height: usize,
     /// The pyramids of the last frames propagated to, by sequence number.
     recent: VecDeque<(u64, Arc<Pyramid>)>,
+    /// Prompts taken from the worker's held frame.
+    prompts_held: u64,
     /// Prompts that arrived after newer frames had been propagated.
     prompts_behind: u64,
     /// Prompts whose image was no longer at hand (ignored).
@@ -207,6 +209,7 @@ impl LkPropagator {
             width: 0,
             height: 0,
             recent: VecDeque::new(),
+            prompts_held: 0,
             prompts_behind: 0,
             prompts_lost: 0,
         }
@@ -214,12 +217,16 @@ impl LkPropagator {
 
     /// Keeps the pyramid of the frame just propagated to as frame `seq`'s.
     fn remember(&mut self, seq: u64) {
-        if let Some(prev) = &self.prev {
-            self.recent.retain(|(s, _)| *s != seq);
-            self.recent.push_back((seq, prev.clone()));
-            while self.recent.len() > RECENT_FRAMES {
-                self.recent.pop_front();
-            }
+        if let Some(prev) = self.prev.clone() {
+            self.store(seq, prev);
+        }
+    }
+
+    fn store(&mut self, seq: u64, pyramid: Arc<Pyramid>) {
+        self.recent.retain(|(s, _)| *s != seq);
+        self.recent.push_back((seq, pyramid));
+        while self.recent.len() > RECENT_FRAMES {
+            self.recent.pop_front();
         }
     }
 
@@ -638,16 +645,19 @@ impl MaskModel for LkPropagator {
     fn prompt(&mut self, frame: Option<&FrameView>, masks: &MasksView) {
         let seq = masks.header.seq;
         let (labels, instances) = (masks.labels, masks.header.instances());
-        // A prompt for a frame already propagated to (real time: the
-        // segmenter runs behind) starts from that frame's own image, which
-        // is kept; the next frame is then reached in one step.
-        let behind = self.recent.back().is_some_and(|(newest, _)| *newest >= seq);
-        if behind && self.prompt_behind(seq, labels, instances) {
+        // A prompt on a kept frame (one propagated to, or kept while the
+        // segmenter worked on it; real time: the segmenter runs behind)
+        // starts from that frame's own image; the next frame is then
+        // reached in one step.
+        if self.prompt_behind(seq, labels, instances) {
             self.prompts_behind += 1;
             return;
         }
         match frame {
-            Some(f) => self.prompt_with(f.rgb, f.width(), f.height(), labels, instances),
+            Some(f) => {
+                self.prompts_held += 1;
+                self.prompt_with(f.rgb, f.width(), f.height(), labels, instances)
+            }
             None => {
                 self.prompts_lost += 1;
                 tracing::warn!(seq, "keyframe image no longer held; prompt ignored");
@@ -655,10 +665,21 @@ impl MaskModel for LkPropagator {
         }
     }
 
+    fn keep(&mut self, frame: &FrameView) {
+        let pyramid = Pyramid::new(
+            Gray::from_rgb(frame.rgb, frame.width(), frame.height()),
+            self.params.pyramid_levels,
+        );
+        self.store(frame.header.seq, Arc::new(pyramid));
+    }
+
     fn summary(&self) -> Option<String> {
         Some(format!(
-            "prompts carried forward from a kept frame: {}, ignored (image gone): {}",
-            self.prompts_behind, self.prompts_lost
+            "segmenter prompts used: {} ({} on their own frame, {} carried forward from a kept frame), ignored (image gone): {}",
+            self.prompts_held + self.prompts_behind,
+            self.prompts_held,
+            self.prompts_behind,
+            self.prompts_lost
         ))
     }
 }

@@ -54,7 +54,8 @@ pub struct Frame {
     pub scale_factor: f32,
     /// Corners the dynamic mask rejected.
     pub masked: usize,
-    /// Image rows (the rolling shutter's extent).
+    /// Image columns and rows (the rolling shutter's extent is the rows).
+    pub width: usize,
     pub height: usize,
 }
 
@@ -113,8 +114,32 @@ impl Frame {
             bounds,
             scale_factor: params.orb.scale_factor,
             masked,
+            width,
             height,
         }
+    }
+
+    /// This frame without the keypoints `drop` marks (a better mask that
+    /// came later), and the old index of every keypoint kept.
+    pub fn without(&self, drop: impl Fn(&KeyPoint) -> bool) -> (Frame, Vec<usize>) {
+        let kept: Vec<usize> = (0..self.kps.len())
+            .filter(|&k| !drop(&self.kps[k]))
+            .collect();
+        let un: Vec<(f64, f64)> = kept.iter().map(|&k| self.un[k]).collect();
+        let frame = Frame {
+            grid: Grid::new(&un, self.width, self.height),
+            kps: kept.iter().map(|&k| self.kps[k]).collect(),
+            un,
+            descs: kept.iter().map(|&k| self.descs[k]).collect(),
+            depth: kept.iter().map(|&k| self.depth[k]).collect(),
+            colours: kept.iter().map(|&k| self.colours[k]).collect(),
+            bounds: self.bounds,
+            scale_factor: self.scale_factor,
+            masked: self.masked + self.kps.len() - kept.len(),
+            width: self.width,
+            height: self.height,
+        };
+        (frame, kept)
     }
 
     /// Keypoint `k`'s scale (sigma of its pyramid level).

@@ -44,5 +44,5 @@ pub use camera::Camera;
 pub use frame::RgbdInput;
 pub use io::map_file::{MapFile, MapFileError};
 pub use params::SlamParams;
-pub use system::{FrameCounts, FrameResult, System};
+pub use system::{FrameCounts, FrameResult, KeyframeTiming, System};
 pub use tracking::TrackingState;

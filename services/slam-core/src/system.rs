@@ -10,6 +10,7 @@
 use nalgebra::Isometry3;
 
 use crate::camera::{Bounds, Camera};
+use crate::features::mask::DynamicMask;
 use crate::features::orb::OrbExtractor;
 use crate::frame::{Frame, RgbdInput};
 use crate::initialization::initialise_rgbd;
@@ -40,6 +41,30 @@ pub struct FrameCounts {
     pub mapping_us: u32,
 }
 
+/// When a frame that the keyframe rule picks becomes a keyframe.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum KeyframeTiming {
+    /// Now, with the masks it was tracked with (lockstep: a keyframe's
+    /// masks are the segmenter's already).
+    #[default]
+    Now,
+    /// When [`System::complete_keyframe`] brings its better masks (real
+    /// time: the frame was tracked with propagated masks while the segmenter
+    /// works on it); later frames are tracked meanwhile.
+    AfterBetterMasks,
+    /// Not this frame (no better masks will come for it): the keyframe
+    /// waits for a frame that gets them, and the hint asks for one.
+    NotThisFrame,
+}
+
+/// A keyframe waiting for its better masks.
+struct PendingKeyframe {
+    frame: Frame,
+    pose_cw: Isometry3<f64>,
+    matched: Vec<Option<usize>>,
+    inliers: usize,
+}
+
 /// What one call of `track_rgbd` reports.
 #[derive(Debug, Clone)]
 pub struct FrameResult {
@@ -47,6 +72,9 @@ pub struct FrameResult {
     pub pose_wc: Isometry3<f64>,
     pub state: TrackingState,
     pub keyframe_inserted: bool,
+    /// The frame will become a keyframe when its better masks come
+    /// ([`KeyframeTiming::AfterBetterMasks`]).
+    pub keyframe_pending: bool,
     /// The next frame should become a keyframe (a hint for whoever decides
     /// which frames get fresh masks).
     pub next_needs_keyframe: bool,
@@ -78,6 +106,20 @@ pub struct System {
     mapping_ms: f64,
     /// What local mapping did over the run so far.
     mapped: MappingCounts,
+    /// A keyframe waiting for its better masks.
+    pending_keyframe: Option<PendingKeyframe>,
+    /// The keyframe rule picked a frame that could not be one
+    /// ([`KeyframeTiming::NotThisFrame`]): the hint asks for the next.
+    keyframe_wanted: bool,
+}
+
+/// What the keyframe rule made of a tracked frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Decision {
+    None,
+    Inserted,
+    Pending,
+    Wanted,
 }
 
 /// Where the last keyframe's local mapping stands.
@@ -122,6 +164,8 @@ impl System {
             bounds: None,
             mapping_ms: 0.0,
             mapped: MappingCounts::default(),
+            pending_keyframe: None,
+            keyframe_wanted: false,
         }
     }
 
@@ -208,6 +252,13 @@ impl System {
     /// back from local mapping, then initialisation or tracking, the
     /// keyframe decision, and local mapping of a new keyframe.
     pub fn track(&mut self, input: &RgbdInput) -> FrameResult {
+        self.track_with(input, KeyframeTiming::Now)
+    }
+
+    /// [`System::track`], with the keyframe of this frame (if the rule
+    /// picks it) inserted as `timing` says. While a keyframe is pending no
+    /// other frame becomes one.
+    pub fn track_with(&mut self, input: &RgbdInput, timing: KeyframeTiming) -> FrameResult {
         let t0 = std::time::Instant::now();
         self.mapping_ms = 0.0;
         if !input.is_well_formed() {
@@ -232,7 +283,7 @@ impl System {
         let mut tracked = if initialising {
             self.initialise(&frame)
         } else {
-            self.tracking.track(&mut self.map, &frame)
+            self.tracking.track(&mut self.map, &frame, input.timestamp)
         };
         if let (TrackingState::Ok, Some(raw)) = (tracked.state, &raw) {
             if let Some(refined) = self.tracking.refine_for_shutter(
@@ -248,7 +299,8 @@ impl System {
         }
         // A successful initialisation made the first keyframe.
         let started = initialising && tracked.state == TrackingState::Ok;
-        let keyframe_inserted = self.decide_keyframe(&tracked, &frame, input.timestamp, started);
+        let decision = self.decide_keyframe(&tracked, &frame, input.timestamp, started, timing);
+        let keyframe_inserted = decision == Decision::Inserted;
         let mut counts = FrameCounts {
             features: frame.kps.len() as u32,
             features_masked: frame.masked as u32,
@@ -268,19 +320,31 @@ impl System {
             self.start_mapping(self.map.keyframes.len() - 1);
         }
         counts.mapping_us = (self.mapping_ms * 1e3) as u32;
+        let keyframe_pending = decision == Decision::Pending;
+        if keyframe_pending {
+            self.pending_keyframe = Some(PendingKeyframe {
+                frame,
+                pose_cw: tracked.pose_cw,
+                matched: tracked.matched,
+                inliers: tracked.inliers,
+            });
+        }
+        self.keyframe_wanted = decision == Decision::Wanted;
         let next_needs_keyframe = !keyframe_inserted
+            && self.pending_keyframe.is_none()
             && if self.localize_only {
                 // No keyframes come: the hint asks for fresh masks at the
                 // keyframe cadence (and when lost).
                 self.tracking.refresh_due()
             } else {
-                self.tracking.next_needs_keyframe(tracked.inliers)
+                self.keyframe_wanted || self.tracking.next_needs_keyframe(tracked.inliers)
             };
         let pose_for_output = self.tracking.last_pose().unwrap_or(tracked.pose_cw);
         FrameResult {
             pose_wc: pose_for_output.inverse(),
             state: tracked.state,
             keyframe_inserted,
+            keyframe_pending,
             next_needs_keyframe,
             counts,
             extract_ms,
@@ -331,38 +395,100 @@ impl System {
     }
 
     /// Moves the motion model on with a tracked frame and inserts it as a
-    /// keyframe when ORB-SLAM2's rule asks (never in localization mode);
-    /// an untracked frame marks tracking lost. True when the frame is a
-    /// keyframe now (`started`: initialisation just made it one).
+    /// keyframe when ORB-SLAM2's rule asks (never in localization mode,
+    /// not while another keyframe is pending; `timing` may defer it); an
+    /// untracked frame marks tracking lost.
     fn decide_keyframe(
         &mut self,
         tracked: &Tracked,
         frame: &Frame,
         timestamp: f64,
         started: bool,
-    ) -> bool {
+        timing: KeyframeTiming,
+    ) -> Decision {
         if !tracked.state.is_tracked() {
             if !self.map.keyframes.is_empty() {
                 self.tracking.mark_lost();
             }
-            return false;
+            return Decision::None;
         }
         self.tracking.accept(tracked, timestamp);
         if started {
-            return true;
+            return Decision::Inserted;
         }
-        if !self.localize_only && self.tracking.need_keyframe(tracked, frame) {
-            self.tracking.insert_keyframe(
-                &mut self.map,
-                frame,
-                &tracked.pose_cw,
-                &tracked.matched,
-                tracked.inliers,
-            );
-            return true;
+        let wanted = !self.localize_only
+            && self.pending_keyframe.is_none()
+            && self.tracking.need_keyframe(tracked, frame);
+        match (wanted, timing) {
+            (true, KeyframeTiming::Now) => {
+                self.tracking.insert_keyframe(
+                    &mut self.map,
+                    frame,
+                    &tracked.pose_cw,
+                    &tracked.matched,
+                    tracked.inliers,
+                );
+                return Decision::Inserted;
+            }
+            (true, KeyframeTiming::AfterBetterMasks) => {
+                self.tracking.count_frame();
+                return Decision::Pending;
+            }
+            (true, KeyframeTiming::NotThisFrame) => {
+                self.tracking.count_frame();
+                return Decision::Wanted;
+            }
+            (false, _) => {}
         }
         self.tracking.count_frame();
-        false
+        Decision::None
+    }
+
+    /// Whether a keyframe waits for [`System::complete_keyframe`].
+    pub fn keyframe_pending(&self) -> bool {
+        self.pending_keyframe.is_some()
+    }
+
+    /// Inserts the pending keyframe, without its features inside `mask`
+    /// (its better masks: labels, non-zero dynamic, the frame's size;
+    /// `None`: they never came, it goes in as tracked). Its map points that
+    /// local mapping culled meanwhile are not observed. True when a
+    /// keyframe was inserted.
+    pub fn complete_keyframe(&mut self, mask: Option<&[u8]>) -> bool {
+        let Some(pending) = self.pending_keyframe.take() else {
+            return false;
+        };
+        self.settle();
+        let PendingKeyframe {
+            frame,
+            pose_cw,
+            matched,
+            inliers,
+        } = pending;
+        let (frame, matched) = match mask.filter(|m| m.len() == frame.width * frame.height) {
+            Some(labels) => {
+                let mask = DynamicMask::new(
+                    labels,
+                    frame.width,
+                    frame.height,
+                    self.params.mask_dilation_px,
+                );
+                let (kept, index) = frame.without(|k| !mask.keeps(k.x, k.y));
+                let matched = index.iter().map(|&k| matched[k]).collect();
+                (kept, matched)
+            }
+            None => (frame, matched),
+        };
+        let matched: Vec<Option<usize>> = matched
+            .into_iter()
+            .map(|m| m.filter(|&p| self.map.points.get(p).is_some_and(|p| p.is_live())))
+            .collect();
+        let inliers = inliers.min(matched.iter().flatten().count());
+        self.tracking
+            .insert_keyframe(&mut self.map, &frame, &pose_cw, &matched, inliers);
+        self.keyframes_inserted += 1;
+        self.start_mapping(self.map.keyframes.len() - 1);
+        true
     }
 
     fn skipped(&self) -> FrameResult {
@@ -374,6 +500,7 @@ impl System {
                 .inverse(),
             state: TrackingState::Skipped,
             keyframe_inserted: false,
+            keyframe_pending: false,
             next_needs_keyframe: false,
             counts: FrameCounts::default(),
             extract_ms: 0.0,

@@ -27,6 +27,7 @@ use slam::rgbd_tracker::{MapFiles, RgbdTracker};
 use slam::scripted::ScriptedTracker;
 use slam::tracker::{TrackInput, Tracker};
 use slam_core::io::ply::write_ply;
+use slam_core::KeyframeTiming;
 
 #[derive(Debug, Parser)]
 #[command(about = "dynslam slam: tracks frames with dynamic-object masks")]
@@ -102,7 +103,17 @@ struct State {
     masks: VecDeque<MasksSample>,
     routes: HashMap<u64, Route>,
     last: Option<Track>,
+    /// Real time: the frame whose keyframe waits for its segmenter masks.
+    pending_keyframe: Option<u64>,
+    /// Real time: the newest frame the segmenter answered for.
+    last_segmented: Option<u64>,
 }
+
+/// Real time: frames after which a keyframe stops waiting for its segmenter
+/// masks (the segmenter died or its frame was replaced) and goes in with the
+/// propagated ones; also how long without any segmenter result before
+/// keyframes are made from propagated masks again.
+const SEGMENTER_PATIENCE: u64 = 60;
 
 fn run(ctx: ServiceContext, map_out: Option<&std::path::Path>, files: MapFiles) -> Result<()> {
     let mut tracker = tracker_from_config(&ctx, files)?;
@@ -125,9 +136,14 @@ fn run(ctx: ServiceContext, map_out: Option<&std::path::Path>, files: MapFiles) 
         masks: VecDeque::new(),
         routes: HashMap::new(),
         last: None,
+        pending_keyframe: None,
+        last_segmented: None,
     };
     loop {
         if wait(&ws, Duration::from_secs(1))? == Wake::Terminate {
+            if st.pending_keyframe.is_some() {
+                tracker.complete_keyframe(None);
+            }
             tracker.finish().map_err(anyhow::Error::msg)?;
             if let Some(path) = map_out {
                 let points = tracker.map_points();
@@ -171,6 +187,20 @@ fn run(ctx: ServiceContext, map_out: Option<&std::path::Path>, files: MapFiles) 
                 break;
             };
             let (seq, source) = (sample.user_header().seq, sample.user_header().source);
+            if source == MaskSource::Segmenter as u32 {
+                st.last_segmented = st.last_segmented.max(Some(seq));
+                if let Some(waiting) = st.pending_keyframe.filter(|&k| k <= seq) {
+                    // The pending keyframe's own masks (or a newer frame's:
+                    // its own will not come) complete it.
+                    let own = waiting == seq;
+                    let view = MasksView::new(sample.user_header(), sample.payload());
+                    let failed = sample.user_header().flags & mask_flags::FAILED != 0;
+                    let masks = view.ok().filter(|_| own && !failed);
+                    tracker.complete_keyframe(masks.as_ref());
+                    st.pending_keyframe = None;
+                    tracing::debug!(seq = waiting, own, "pending keyframe inserted");
+                }
+            }
             if st.last.is_some_and(|l| seq <= l.seq) {
                 // Real time: the segmenter's result for a frame already
                 // tracked with propagated masks (the propagator takes it as
@@ -192,6 +222,16 @@ fn run(ctx: ServiceContext, map_out: Option<&std::path::Path>, files: MapFiles) 
 
         while let Some(track) = track_next_ready(&mut st, &mut *tracker, realtime)? {
             tracks.send(track)?;
+        }
+        if let (Some(waiting), Some(last)) = (st.pending_keyframe, st.last) {
+            if last.seq > waiting + SEGMENTER_PATIENCE {
+                tracing::warn!(
+                    seq = waiting,
+                    "no segmenter masks for this keyframe; inserted with its propagated ones"
+                );
+                tracker.complete_keyframe(None);
+                st.pending_keyframe = None;
+            }
         }
     }
 }
@@ -220,9 +260,13 @@ fn track_next_ready(
         st.frames.iter().position(ready)
     };
     let Some(index) = index else { return Ok(None) };
-    let track = make_track(st, index, tracker)?;
+    let timing = keyframe_timing(st, index, realtime);
+    let (track, pending) = make_track(st, index, tracker, timing)?;
     // Everything up to this frame is consumed.
     let seq = track.seq;
+    if pending {
+        st.pending_keyframe = Some(seq);
+    }
     st.last = Some(track);
     st.frames.retain(|f| f.sample.user_header().seq > seq);
     st.masks.retain(|m| m.user_header().seq > seq);
@@ -230,17 +274,52 @@ fn track_next_ready(
     Ok(Some(track))
 }
 
+/// When the frame at `index` may become a keyframe. Lockstep: now (its
+/// route gave it the segmenter's masks when a keyframe was asked for).
+/// Real time: a frame tracked with propagated masks while the segmenter
+/// works on it waits for them; other propagated frames leave the keyframe
+/// to the next segmented one, unless the segmenter has not answered for a
+/// long while (then keyframes come from propagated masks, as they must).
+fn keyframe_timing(st: &State, index: usize, realtime: bool) -> KeyframeTiming {
+    if !realtime {
+        return KeyframeTiming::Now;
+    }
+    let seq = st.frames[index].sample.user_header().seq;
+    let segmented_masks = st.masks.iter().any(|m| {
+        m.user_header().seq == seq && m.user_header().source == MaskSource::Segmenter as u32
+    });
+    let route = st
+        .routes
+        .get(&seq)
+        .and_then(|r| RouteKind::from_u32(r.kind));
+    let segmenter_alive = st
+        .last_segmented
+        .is_some_and(|s| seq <= s + SEGMENTER_PATIENCE);
+    match route {
+        _ if segmented_masks => KeyframeTiming::Now,
+        Some(RouteKind::SegmentBehind) => KeyframeTiming::AfterBetterMasks,
+        Some(RouteKind::Propagate) if segmenter_alive => KeyframeTiming::NotThisFrame,
+        _ => KeyframeTiming::Now,
+    }
+}
+
 /// The Track of the ready frame at `index`: tracked with its masks, or
 /// skipped when the reader marked it bad (answered only once routed, so the
-/// supervisor has the reason on file).
-fn make_track(st: &State, index: usize, tracker: &mut dyn Tracker) -> Result<Track> {
+/// supervisor has the reason on file). True with it when its keyframe waits
+/// for the segmenter's masks.
+fn make_track(
+    st: &State,
+    index: usize,
+    tracker: &mut dyn Tracker,
+    keyframe: KeyframeTiming,
+) -> Result<(Track, bool)> {
     let held = &st.frames[index];
     let header = held.sample.user_header();
     let seq = header.seq;
     let route = st.routes[&seq];
     let mut stamps = route.stamps;
     if header.has(frame_flags::BAD_INPUT) {
-        return Ok(skipped_track(header, stamps));
+        return Ok((skipped_track(header, stamps), false));
     }
     let masks_sample = st.masks.iter().find(|m| m.user_header().seq == seq);
     let masks_view = match masks_sample {
@@ -260,9 +339,10 @@ fn make_track(st: &State, index: usize, tracker: &mut dyn Tracker) -> Result<Tra
         seq,
         frame: &frame,
         masks: masks_view.as_ref(),
+        keyframe,
     });
     stamps.track_done_ns = now_ns();
-    Ok(Track {
+    let track = Track {
         seq,
         source_timestamp: header.source_timestamp,
         pose: outcome.pose,
@@ -272,7 +352,8 @@ fn make_track(st: &State, index: usize, tracker: &mut dyn Tracker) -> Result<Tra
         mask_source: masks_view.map(|m| m.source() as u32).unwrap_or(0),
         counts: outcome.counts,
         stamps,
-    })
+    };
+    Ok((track, outcome.keyframe_pending))
 }
 
 fn skipped_track(h: &FrameHeader, mut stamps: StageStamps) -> Track {

@@ -4,6 +4,7 @@
 use std::path::PathBuf;
 
 use pipeline::config::PipelineConfig;
+use pipeline::views::MasksView;
 use shared_types::TrackState;
 use slam_core::io::ply::ColouredPoint;
 use slam_core::io::trajectory::Trajectory;
@@ -136,14 +137,21 @@ impl Tracker for RgbdTracker {
             rgb = &self.painted;
             mask = None;
         }
-        let r = self
-            .system
-            .track_rgbd(rgb, &self.depth, mask, w, h, frame.header.source_timestamp);
+        let rgbd = slam_core::RgbdInput {
+            rgb,
+            depth: &self.depth,
+            mask,
+            width: w,
+            height: h,
+            timestamp: frame.header.source_timestamp,
+        };
+        let r = self.system.track_with(&rgbd, input.keyframe);
         let (t, q) = (r.pose_wc.translation.vector, r.pose_wc.rotation);
         TrackOutcome {
             pose: [t.x, t.y, t.z, q.i, q.j, q.k, q.w],
             state: convert::track_state(r.state),
-            keyframe_inserted: r.keyframe_inserted,
+            keyframe_inserted: r.keyframe_inserted || r.keyframe_pending,
+            keyframe_pending: r.keyframe_pending,
             // Lost frames ask for the segmenter too: relocalising on
             // fresh masks is what a dynamic scene needs.
             next_needs_keyframe: r.next_needs_keyframe
@@ -152,7 +160,13 @@ impl Tracker for RgbdTracker {
         }
     }
 
+    fn complete_keyframe(&mut self, masks: Option<&MasksView>) -> bool {
+        self.system.complete_keyframe(masks.map(|m| m.labels))
+    }
+
     fn finish(&mut self) -> Result<(), String> {
+        // A keyframe still waiting for its masks goes in as tracked.
+        self.system.complete_keyframe(None);
         for path in self.checkpoint.iter().chain(&self.save) {
             self.system.save_map(path).map_err(|e| e.to_string())?;
             tracing::info!("map written to {}", path.display());

@@ -60,6 +60,7 @@ impl Tracker for ScriptedTracker {
             pose: [input.seq as f64 * 0.01, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
             state: TrackState::Ok,
             keyframe_inserted: keyframe,
+            keyframe_pending: false,
             next_needs_keyframe: self.wants_keyframe_after(input.seq),
             counts: TrackCounts {
                 keyframes: self.keyframes,

@@ -2,6 +2,7 @@
 
 use pipeline::views::{FrameView, MasksView};
 use shared_types::{MaskSource, TrackCounts, TrackState};
+use slam_core::KeyframeTiming;
 
 /// Everything a tracker gets for one frame.
 pub struct TrackInput<'a> {
@@ -10,6 +11,8 @@ pub struct TrackInput<'a> {
     /// Dynamic-object masks, when the frame was routed to a mask worker and
     /// the worker succeeded.
     pub masks: Option<&'a MasksView<'a>>,
+    /// When the frame becomes a keyframe if the tracker's rule picks it.
+    pub keyframe: KeyframeTiming,
 }
 
 impl TrackInput<'_> {
@@ -24,7 +27,10 @@ pub struct TrackOutcome {
     /// World-from-camera pose: tx ty tz qx qy qz qw.
     pub pose: [f64; 7],
     pub state: TrackState,
+    /// The frame is a keyframe now, or becomes one when its segmenter masks
+    /// come (`keyframe_pending`).
     pub keyframe_inserted: bool,
+    pub keyframe_pending: bool,
     /// The next frame should be a keyframe (drives the supervisor's routing).
     pub next_needs_keyframe: bool,
     pub counts: TrackCounts,
@@ -38,6 +44,12 @@ pub trait Tracker {
     /// the file.
     fn finish(&mut self) -> Result<(), String> {
         Ok(())
+    }
+    /// Inserts the keyframe a [`KeyframeTiming::AfterBetterMasks`] frame
+    /// left pending, without its features inside `masks` (`None`: they did
+    /// not come). True when one was inserted.
+    fn complete_keyframe(&mut self, _masks: Option<&MasksView>) -> bool {
+        false
     }
     /// The map's points (empty for trackers without a map).
     fn map_points(&mut self) -> Vec<slam_core::io::ply::ColouredPoint> {

@@ -94,6 +94,12 @@ impl Service {
     }
 }
 
+/// Real time: frames at most between their route and their Track (one
+/// being tracked, one being masked). A route older than the timeout no
+/// longer counts (its worker died: the frame will be dropped).
+const REALTIME_IN_FLIGHT: usize = 2;
+const REALTIME_FLIGHT_TIMEOUT: Duration = Duration::from_secs(1);
+
 /// A frame the supervisor has seen but whose fate is not recorded yet.
 #[derive(Debug, Clone)]
 struct Pending {
@@ -103,6 +109,8 @@ struct Pending {
     stamps: shared_types::StageStamps,
     /// Decided (and sent) route; `None` while waiting for the previous Track.
     route: Option<RouteKind>,
+    /// When the route was sent (real time: frames in flight are bounded).
+    routed_at: Option<Instant>,
     note: String,
 }
 
@@ -355,6 +363,7 @@ impl Supervisor {
             bad,
             stamps: h.stamps,
             route: None,
+            routed_at: None,
             note: if bad {
                 format!("bad input: {}", read_error_text(&h.error))
             } else {
@@ -393,13 +402,30 @@ impl Supervisor {
             .map(|(&s, _)| s)
             .collect();
         waiting.sort_unstable();
+        // Real time: the newest frame first, and only while fewer than
+        // REALTIME_IN_FLIGHT frames are between routing and their Track. The
+        // propagator then masks only frames SLAM will track, instead of
+        // burning the cores SLAM needs on frames a newer one replaces; the
+        // frames passed over are dropped when a newer one is tracked.
+        let mut room = usize::MAX;
         if !lockstep {
-            // Real time: the newest frame first (it is the one worth masking
-            // when the segmenter can take only one).
             waiting.reverse();
+            let in_flight = self
+                .pending
+                .values()
+                .filter(|p| {
+                    p.route.is_some_and(|r| r != RouteKind::Skip)
+                        && p.routed_at
+                            .is_some_and(|t| t.elapsed() < REALTIME_FLIGHT_TIMEOUT)
+                })
+                .count();
+            room = REALTIME_IN_FLIGHT.saturating_sub(in_flight);
         }
         for seq in waiting {
             if lockstep && seq > 0 && !self.rows.contains_key(&(seq - 1)) {
+                break;
+            }
+            if room == 0 {
                 break;
             }
             let availability = self.availability();
@@ -412,11 +438,15 @@ impl Supervisor {
                 continue; // real time: waits for the first segmenter result
             };
             p.route = Some(kind);
+            p.routed_at = Some(Instant::now());
             if kind == RouteKind::Skip && !p.bad && !no_masks {
                 p.note = "unmasked: no mask service available".into();
             }
             let stamps = p.stamps;
             send_route(routes, seq, kind, stamps, false)?;
+            if kind != RouteKind::Skip {
+                room = room.saturating_sub(1);
+            }
         }
         Ok(())
     }

@@ -62,7 +62,9 @@ pub struct Tracking {
     pub(crate) params: SlamParams,
     /// Camera from world of the last tracked frame, and the motion since the one before.
     last_pose: Option<Isometry3<f64>>,
-    velocity: Option<Isometry3<f64>>,
+    /// The motion between the last two tracked frames, and the seconds
+    /// between them.
+    velocity: Option<(Isometry3<f64>, f64)>,
     /// Timestamp and pose (camera from world) of the last tracked frames,
     /// oldest first, at most `MOTION_HISTORY` (cleared when lost): the
     /// rolling-shutter correction's motion estimate.
@@ -121,8 +123,8 @@ impl Tracking {
         };
         self.reset();
         self.last_pose = Some(last);
-        if let [.., (_, before), _] = recent {
-            self.velocity = Some(renormalized(&(last * before.inverse())));
+        if let [.., (t0, before), (t1, _)] = recent {
+            self.velocity = Some((renormalized(&(last * before.inverse())), t1 - t0));
         }
         self.recent = recent.to_vec();
         self.resumed = true;
@@ -149,11 +151,32 @@ impl Tracking {
         self.last_pose = Some(pose_cw);
     }
 
-    /// Tracks `frame` against `map` (which has at least one keyframe).
-    pub(crate) fn track(&mut self, map: &mut Map, frame: &Frame) -> Tracked {
+    /// Where the constant-velocity model puts a frame taken at `timestamp`:
+    /// the last motion, per second (frames skipped in real time, or gaps
+    /// in the recording, mean more motion since the last tracked frame).
+    fn predicted(&self, last: &Isometry3<f64>, timestamp: f64) -> Isometry3<f64> {
+        let Some((v, dt)) = self.velocity else {
+            return *last;
+        };
+        let since = self.last_timestamp().map_or(dt, |t| timestamp - t);
+        let ratio = since / dt;
+        let step = if ratio.is_finite() && ratio > 0.0 && ratio <= 4.0 {
+            Isometry3::from_parts(
+                nalgebra::Translation3::from(v.translation.vector * ratio),
+                v.rotation.powf(ratio),
+            )
+        } else {
+            v
+        };
+        renormalized(&(step * last))
+    }
+
+    /// Tracks `frame`, taken at `timestamp`, against `map` (which has at
+    /// least one keyframe).
+    pub(crate) fn track(&mut self, map: &mut Map, frame: &Frame, timestamp: f64) -> Tracked {
         let local = self.local_points(map);
         if let Some(last) = self.last_pose.filter(|_| !self.lost) {
-            let predicted = self.velocity.map_or(last, |v| renormalized(&(v * last)));
+            let predicted = self.predicted(&last, timestamp);
             for (start, radius) in [(predicted, 15.0), (last, 30.0)] {
                 if let Some(t) = self.track_from(map, frame, &local, &start, radius) {
                     return Tracked {
@@ -258,7 +281,8 @@ impl Tracking {
     pub(crate) fn accept(&mut self, tracked: &Tracked, timestamp: f64) {
         let pose_cw = tracked.pose_cw;
         if let Some(last) = self.last_pose {
-            self.velocity = Some(renormalized(&(pose_cw * last.inverse())));
+            let dt = self.last_timestamp().map_or(0.0, |t| timestamp - t);
+            self.velocity = Some((renormalized(&(pose_cw * last.inverse())), dt));
         }
         self.last_pose = Some(pose_cw);
         self.last_matched = tracked.matched.iter().flatten().copied().collect();

@@ -1,0 +1,304 @@
+//! `just bench-realtime`: the whole pipeline playing a TUM sequence in real
+//! time with the product's models, at 30 fps and at 60 fps (the recorded
+//! rate x2), each without and with artificial load (busy processes pinned
+//! to the cores), against one lockstep run for the reference ATE.
+//!
+//! Per condition it prints the tracked rate (tracked frames per second of
+//! the stream), dropped %, end-to-end p50/p99, the share of tracked frames
+//! that had masks, and the ATE next to the lockstep ATE; every run's
+//! figures go to `bench-results/realtime.json`.
+//!
+//! `realtime-bench [DATASET] [--runs N] [--load N] [--out FILE]`
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+use anyhow::{bail, Context, Result};
+use clap::Parser;
+use pipeline::config::{ClockMode, PipelineConfig};
+use serde::Serialize;
+use supervisor::outputs::{FrameLog, FrameRow};
+use supervisor::run::execute;
+use supervisor::run_dir;
+
+#[derive(Debug, Parser)]
+#[command(about = "Real-time pipeline: tracked fps, drops, latency and ATE, with and without load")]
+struct Args {
+    #[arg(default_value_os_t = pipeline::provision::shared_tum())]
+    dataset: PathBuf,
+    /// Runs per condition (the figures are their median, the worst is shown too).
+    #[arg(long, default_value_t = 3)]
+    runs: usize,
+    /// Busy processes of the loaded conditions (one pinned per core, round robin).
+    #[arg(long, default_value_t = 2)]
+    load: usize,
+    /// Where run folders go.
+    #[arg(long, default_value = "target/bench-runs")]
+    output_dir: PathBuf,
+    #[arg(long, default_value = "bench-results/realtime.json")]
+    out: PathBuf,
+    /// Internal: be a busy process pinned to this core (the load).
+    #[arg(long, hide = true)]
+    burn: Option<usize>,
+}
+
+/// One real-time run's figures.
+#[derive(Debug, Clone, Serialize)]
+struct RunFigures {
+    fps_in: f64,
+    busy_processes: usize,
+    frames: usize,
+    tracked: usize,
+    /// Tracked frames per second of stream time.
+    tracked_fps: f64,
+    dropped_pct: f64,
+    /// Share of tracked frames that had masks (segmenter or propagator).
+    masked_share: f64,
+    end_to_end_p50_ms: Option<f64>,
+    end_to_end_p99_ms: Option<f64>,
+    ate_rmse_m: Option<f64>,
+    run_dir: PathBuf,
+}
+
+#[derive(Debug, Serialize)]
+struct Results {
+    dataset: PathBuf,
+    lockstep_ate_rmse_m: Option<f64>,
+    runs: Vec<RunFigures>,
+}
+
+fn main() -> Result<()> {
+    let args = Args::parse();
+    if let Some(core) = args.burn {
+        burn(core);
+    }
+    pipeline::runtime::init_logging();
+    if !args.dataset.join("rgb.txt").is_file() {
+        bail!(
+            "{}: not a TUM RGB-D folder (no rgb.txt)",
+            args.dataset.display()
+        );
+    }
+    let dataset = args
+        .dataset
+        .canonicalize()
+        .with_context(|| args.dataset.display().to_string())?;
+    let batch = run_dir::new_run_id();
+    let lockstep = run_once(
+        &dataset,
+        &args.output_dir,
+        &format!("rtb-{batch}-lockstep"),
+        |c| c.run.mode = ClockMode::Lockstep,
+    )?;
+    let lockstep_ate = lockstep.ate_rmse_m;
+    eprintln!(
+        "lockstep: {}/{} tracked, ATE {}",
+        lockstep.tracked,
+        lockstep.frames,
+        fmt_m(lockstep_ate)
+    );
+    let mut runs = Vec::new();
+    for (fps, speed) in [(30.0, 1.0), (60.0, 2.0)] {
+        for load in [0, args.load] {
+            for i in 0..args.runs {
+                let burners = start_load(load)?;
+                let id = format!("rtb-{batch}-{fps}fps-load{load}-{i}");
+                let result = run_once(&dataset, &args.output_dir, &id, |c| {
+                    c.run.mode = ClockMode::Realtime;
+                    c.run.speed = speed;
+                });
+                stop_load(burners);
+                let mut f = result?;
+                f.fps_in = fps;
+                f.busy_processes = load;
+                eprintln!(
+                    "{fps} fps, {load} busy: {:.1} tracked fps, {:.1} % dropped, e2e p99 {}, ATE {}",
+                    f.tracked_fps,
+                    f.dropped_pct,
+                    fmt_ms(f.end_to_end_p99_ms),
+                    fmt_m(f.ate_rmse_m)
+                );
+                runs.push(f);
+            }
+        }
+    }
+    println!(
+        "real time on {} ({} runs per condition; figures: median, worst run in brackets)",
+        dataset.display(),
+        args.runs
+    );
+    println!(
+        "{:>6} {:>5} {:>18} {:>9} {:>10} {:>10} {:>8} {:>22}",
+        "fps in",
+        "busy",
+        "tracked fps",
+        "dropped",
+        "e2e p50",
+        "e2e p99",
+        "masked",
+        "ATE (lockstep)"
+    );
+    for (fps, load) in [(30.0, 0), (30.0, args.load), (60.0, 0), (60.0, args.load)] {
+        let group: Vec<&RunFigures> = runs
+            .iter()
+            .filter(|r| r.fps_in == fps && r.busy_processes == load)
+            .collect();
+        let med = |f: &dyn Fn(&RunFigures) -> Option<f64>| {
+            let mut v: Vec<f64> = group.iter().filter_map(|r| f(r)).collect();
+            v.sort_by(f64::total_cmp);
+            (!v.is_empty()).then(|| v[v.len() / 2])
+        };
+        let worst_fps = group
+            .iter()
+            .map(|r| r.tracked_fps)
+            .fold(f64::INFINITY, f64::min);
+        println!(
+            "{:>6} {:>5} {:>10.1} ({:>5.1}) {:>8.1}% {:>10} {:>10} {:>7.0}% {:>10} ({})",
+            fps,
+            load,
+            med(&|r| Some(r.tracked_fps)).unwrap_or(0.0),
+            worst_fps,
+            med(&|r| Some(r.dropped_pct)).unwrap_or(0.0),
+            fmt_ms(med(&|r| r.end_to_end_p50_ms)),
+            fmt_ms(med(&|r| r.end_to_end_p99_ms)),
+            100.0 * med(&|r| Some(r.masked_share)).unwrap_or(0.0),
+            fmt_m(med(&|r| r.ate_rmse_m)),
+            fmt_m(lockstep_ate)
+        );
+    }
+    if let Some(parent) = args.out.parent() {
+        std::fs::create_dir_all(parent)?;
+    }
+    let results = Results {
+        dataset,
+        lockstep_ate_rmse_m: lockstep_ate,
+        runs,
+    };
+    std::fs::write(&args.out, serde_json::to_string_pretty(&results)?)
+        .with_context(|| format!("cannot write {}", args.out.display()))?;
+    println!("figures: {}", args.out.display());
+    Ok(())
+}
+
+/// One pipeline run on `dataset` with the shipped configuration changed by
+/// `apply`; its figures from the run folder.
+fn run_once(
+    dataset: &Path,
+    output_dir: &Path,
+    id: &str,
+    apply: impl FnOnce(&mut PipelineConfig),
+) -> Result<RunFigures> {
+    let mut cfg = PipelineConfig::default();
+    cfg.source.path = dataset.to_path_buf();
+    apply(&mut cfg);
+    let dir = run_dir::create(output_dir, id, &cfg, "config (realtime-bench)")?;
+    let summary = execute(&dir).with_context(|| format!("run {}", dir.display()))?;
+    let (_, rows) = FrameLog::open(&dir)?;
+    let report = summary.report.as_ref();
+    let stage = |name: &str, p99: bool| {
+        report.and_then(|r| {
+            r.latency
+                .iter()
+                .find(|s| s.stage == name && s.count > 0)
+                .map(|s| if p99 { s.p99_ms } else { s.p50_ms })
+        })
+    };
+    Ok(figures(&rows, cfg.run.speed, dir.clone())
+        .with_latency(stage("end_to_end", false), stage("end_to_end", true))
+        .with_ate(report.and_then(|r| r.eval.as_ref()).map(|e| e.ate_rmse_m)))
+}
+
+/// Rates from a run's frame rows; the stream lasts from its first to its
+/// last frame's timestamp, played `speed` times as fast.
+fn figures(rows: &[FrameRow], speed: f64, run_dir: PathBuf) -> RunFigures {
+    let tracked: Vec<&FrameRow> = rows.iter().filter(|r| r.is_tracked()).collect();
+    let (first, last) = (
+        rows.iter()
+            .map(|r| r.timestamp)
+            .fold(f64::INFINITY, f64::min),
+        rows.iter()
+            .map(|r| r.timestamp)
+            .fold(f64::NEG_INFINITY, f64::max),
+    );
+    let seconds = ((last - first) / speed).max(1e-9);
+    let dropped = rows.iter().filter(|r| r.state == "dropped").count();
+    let masked = tracked.iter().filter(|r| r.mask_source != "none").count();
+    RunFigures {
+        fps_in: 0.0,
+        busy_processes: 0,
+        frames: rows.len(),
+        tracked: tracked.len(),
+        tracked_fps: tracked.len() as f64 / seconds,
+        dropped_pct: 100.0 * dropped as f64 / rows.len().max(1) as f64,
+        masked_share: masked as f64 / tracked.len().max(1) as f64,
+        end_to_end_p50_ms: None,
+        end_to_end_p99_ms: None,
+        ate_rmse_m: None,
+        run_dir,
+    }
+}
+
+impl RunFigures {
+    fn with_latency(mut self, p50: Option<f64>, p99: Option<f64>) -> Self {
+        self.end_to_end_p50_ms = p50;
+        self.end_to_end_p99_ms = p99;
+        self
+    }
+    fn with_ate(mut self, ate: Option<f64>) -> Self {
+        self.ate_rmse_m = ate;
+        self
+    }
+}
+
+/// `n` busy processes (this binary with `--burn CORE`), one per core in
+/// turn, so that the pipeline competes for every core as on a loaded robot
+/// computer.
+fn start_load(n: usize) -> Result<Vec<Child>> {
+    let exe = std::env::current_exe().context("cannot find this binary to start the load")?;
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let mut children = Vec::new();
+    for i in 0..n {
+        let child = Command::new(&exe)
+            .args(["--burn", &(i % cores).to_string()])
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .spawn()
+            .context("cannot start a busy process")?;
+        children.push(child);
+    }
+    // Let them get going before the pipeline starts.
+    std::thread::sleep(Duration::from_millis(200));
+    Ok(children)
+}
+
+fn stop_load(children: Vec<Child>) {
+    for mut c in children {
+        let _ = c.kill();
+        let _ = c.wait();
+    }
+}
+
+/// A busy loop pinned to `core`; dies with the bench (never returns).
+fn burn(core: usize) -> ! {
+    // SAFETY: plain syscalls on this process; a zeroed cpu_set_t is a
+    // valid empty set and CPU_SET writes inside it.
+    unsafe {
+        libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL);
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        libc::CPU_SET(core, &mut set);
+        libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set);
+    }
+    let mut x = 0u64;
+    loop {
+        x = std::hint::black_box(x.wrapping_mul(6364136223846793005).wrapping_add(1));
+    }
+}
+
+fn fmt_m(v: Option<f64>) -> String {
+    v.map_or("-".into(), |v| format!("{v:.4} m"))
+}
+
+fn fmt_ms(v: Option<f64>) -> String {
+    v.map_or("-".into(), |v| format!("{v:.0} ms"))
+}

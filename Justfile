@@ -47,6 +47,17 @@ evo:
         "$venv/bin/pip" install --quiet --disable-pip-version-check evo==1.38.1
     fi
 
+# iceoryx2's Python binding (PyPI, the version of our crate) in the repo's ignored .cache, for the pose-stream example and its test.
+pyiceoryx2:
+    #!/usr/bin/env bash
+    set -euo pipefail
+    venv=.cache/iox2-venv
+    if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c 'import iceoryx2' 2>/dev/null; then
+        echo "installing iceoryx2 0.10.0 (Python) into $venv (once)"
+        python3 -m venv "$venv"
+        "$venv/bin/pip" install --quiet --disable-pip-version-check iceoryx2==0.10.0
+    fi
+
 # Test images that registry packages ship (not committed: their licences are not ours), into .cache/fixtures.
 fixtures: evo
     #!/usr/bin/env bash
@@ -61,7 +72,7 @@ fixtures: evo
     fi
 
 # Format check, lints, unit and integration tests (multi-process, fault injection, evo parity).
-test: build setup evo fixtures
+test: build setup evo fixtures pyiceoryx2
     cargo fmt --all -- --check
     cargo clippy --release --workspace --all-targets -- -D warnings
     cargo test --release --workspace

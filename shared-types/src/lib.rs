@@ -399,6 +399,51 @@ impl ServiceKind {
     }
 }
 
+/// Layout version of [`Pose`]; a change of layout gets a new version (and
+/// a new `type_name`, so that an old subscriber cannot open the service).
+pub const POSE_VERSION: u32 = 1;
+
+/// One pose of the public pose stream, service `dynslam/<run id>/poses`
+/// (iceoryx2 publish-subscribe, file prefix `dsl_<run id>_`, user header
+/// `()`): what SLAM answered for one frame, for programs outside the
+/// pipeline (README "Poses out"; `docs/examples/poses.py` reads it from
+/// Python). 88 bytes, 8-byte aligned, native byte order. The stream keeps
+/// the last 16 poses for a subscriber that connects late.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("dynslam::Pose.v1")]
+pub struct Pose {
+    /// [`POSE_VERSION`].
+    pub version: u32,
+    /// A [`TrackState`] value: 0 not initialised, 1 ok, 2 lost, 3
+    /// relocalised, 4 skipped (bad input); not ok: the pose is the last
+    /// known one.
+    pub state: u32,
+    /// Frame sequence number (0 = first frame of the run).
+    pub seq: u64,
+    /// The frame's source timestamp (seconds; the camera's clock).
+    pub timestamp: f64,
+    /// World from camera: tx ty tz (metres) qx qy qz qw (TUM order).
+    pub pose: [f64; 7],
+    /// 1 when the frame became a keyframe.
+    pub keyframe: u32,
+    pub reserved: u32,
+}
+
+impl Pose {
+    pub fn of(track: &Track) -> Self {
+        Self {
+            version: POSE_VERSION,
+            state: track.state,
+            seq: track.seq,
+            timestamp: track.source_timestamp,
+            pose: track.pose,
+            keyframe: track.keyframe_inserted,
+            reserved: 0,
+        }
+    }
+}
+
 /// Readiness handshake: a service announces that all its ports are open.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend)]

@@ -22,16 +22,20 @@ pub enum Topic {
     Lifecycle,
     /// supervisor -> camera-reader: `Control`.
     Control,
+    /// slam -> anyone outside the pipeline: `Pose` (the public pose stream,
+    /// README "Poses out").
+    Poses,
 }
 
 impl Topic {
-    pub const ALL: [Topic; 6] = [
+    pub const ALL: [Topic; 7] = [
         Topic::Frames,
         Topic::Routes,
         Topic::Masks,
         Topic::Tracks,
         Topic::Lifecycle,
         Topic::Control,
+        Topic::Poses,
     ];
     pub fn as_str(self) -> &'static str {
         match self {
@@ -41,6 +45,7 @@ impl Topic {
             Topic::Tracks => "tracks",
             Topic::Lifecycle => "lifecycle",
             Topic::Control => "control",
+            Topic::Poses => "poses",
         }
     }
 }

@@ -35,6 +35,8 @@ pub struct Qos {
     pub buffer: usize,
     /// Samples a subscriber may hold at once (workers keep a few frames).
     pub borrowed: usize,
+    /// Samples a subscriber that connects late still gets.
+    pub history: usize,
 }
 
 /// The quality of service of each topic. Queues overflow by dropping the
@@ -45,20 +47,31 @@ pub fn qos(topic: Topic) -> Qos {
         Topic::Frames => Qos {
             buffer: 4,
             borrowed: 4,
+            history: 0,
         },
         // SLAM holds up to 3 sets (a frame segmented behind can have two,
         // and the next frame's may arrive before it is tracked).
         Topic::Masks => Qos {
             buffer: 4,
             borrowed: 4,
+            history: 0,
         },
         Topic::Routes | Topic::Tracks => Qos {
             buffer: 64,
             borrowed: 2,
+            history: 0,
+        },
+        // The public pose stream: a subscriber started with the run (or
+        // after a hiccup) still gets the poses of its first moments.
+        Topic::Poses => Qos {
+            buffer: 64,
+            borrowed: 2,
+            history: 16,
         },
         Topic::Lifecycle | Topic::Control => Qos {
             buffer: 16,
             borrowed: 2,
+            history: 0,
         },
     }
 }
@@ -138,7 +151,7 @@ impl Transport {
             .subscriber_max_buffer_size(q.buffer)
             .subscriber_max_borrowed_samples(q.borrowed)
             .enable_safe_overflow(true)
-            .history_size(0)
+            .history_size(q.history)
             .max_publishers(MAX_PUBLISHERS)
             .max_subscribers(MAX_SUBSCRIBERS)
             .max_nodes(MAX_NODES)

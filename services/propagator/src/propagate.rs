@@ -215,6 +215,31 @@ impl LkPropagator {
         }
     }
 
+    /// [`Self::propagate`] to frame `seq`, whose image is then kept for a
+    /// late prompt ([`Self::prompt_behind`]).
+    pub fn propagate_frame(
+        &mut self,
+        seq: u64,
+        rgb: &[u8],
+        width: usize,
+        height: usize,
+        labels: &mut [u8],
+    ) -> Vec<Instance> {
+        let instances = self.propagate(rgb, width, height, labels);
+        self.remember(seq);
+        instances
+    }
+
+    /// Keeps frame `seq`'s image (one the segmenter is working on) for its
+    /// prompt ([`Self::prompt_behind`]).
+    pub fn keep_image(&mut self, seq: u64, rgb: &[u8], width: usize, height: usize) {
+        let pyramid = Pyramid::new(
+            Gray::from_rgb(rgb, width, height),
+            self.params.pyramid_levels,
+        );
+        self.store(seq, Arc::new(pyramid));
+    }
+
     /// Keeps the pyramid of the frame just propagated to as frame `seq`'s.
     fn remember(&mut self, seq: u64) {
         if let Some(prev) = self.prev.clone() {
@@ -243,6 +268,11 @@ impl LkPropagator {
             return false;
         };
         self.set_objects(labels, instances);
+        // The size propagation checks the next frame against.
+        if let Some(base) = pyramid.levels.first() {
+            self.width = base.width;
+            self.height = base.height;
+        }
         self.prev = Some(pyramid);
         true
     }
@@ -637,9 +667,8 @@ impl MaskModel for LkPropagator {
     }
 
     fn infer(&mut self, frame: &FrameView, labels: &mut [u8]) -> Result<Vec<Instance>> {
-        let instances = self.propagate(frame.rgb, frame.width(), frame.height(), labels);
-        self.remember(frame.header.seq);
-        Ok(instances)
+        let (w, h) = (frame.width(), frame.height());
+        Ok(self.propagate_frame(frame.header.seq, frame.rgb, w, h, labels))
     }
 
     fn prompt(&mut self, frame: Option<&FrameView>, masks: &MasksView) {
@@ -666,11 +695,7 @@ impl MaskModel for LkPropagator {
     }
 
     fn keep(&mut self, frame: &FrameView) {
-        let pyramid = Pyramid::new(
-            Gray::from_rgb(frame.rgb, frame.width(), frame.height()),
-            self.params.pyramid_levels,
-        );
-        self.store(frame.header.seq, Arc::new(pyramid));
+        self.keep_image(frame.header.seq, frame.rgb, frame.width(), frame.height());
     }
 
     fn summary(&self) -> Option<String> {

@@ -44,6 +44,56 @@ fn prompt(p: &mut LkPropagator, rgb: &[u8], mask: &[bool]) {
     p.prompt_with(rgb, W, H, &labels, &[inst]);
 }
 
+/// Real time: the segmenter's masks for frame 3 come while frame 6 is
+/// already propagated; the propagator starts again from frame 3's own image
+/// and reaches frame 7 in one step.
+#[test]
+fn a_late_prompt_is_carried_forward_from_its_own_frame() {
+    let (bg, tex) = (tum("1305031229.528748.png"), tum("1305031234.493831.png"));
+    let centre = |k: usize| (250.0 + 6.0 * k as f32, 220.0 + 3.0 * k as f32);
+    let mut p = LkPropagator::new(PropagatorParams::default());
+    let mut labels = vec![0u8; W * H];
+    // No prompt yet: the frames are propagated to (nothing to follow) and kept.
+    for k in 0..=6 {
+        let (rgb, _) = render(&bg, &tex, (0.0, 0.0), centre(k), 1.0);
+        labels.fill(0);
+        assert!(p
+            .propagate_frame(k as u64, &rgb, W, H, &mut labels)
+            .is_empty());
+    }
+    let (_, at3) = render(&bg, &tex, (0.0, 0.0), centre(3), 1.0);
+    let labels3: Vec<u8> = at3.iter().map(|&m| m as u8).collect();
+    let inst = Instance {
+        object_id: 7,
+        class_id: 0,
+        score: 0.9,
+        bbox: [0.0; 4],
+    };
+    assert!(
+        !p.prompt_behind(99, &labels3, &[inst]),
+        "frame 99 was never seen"
+    );
+    assert!(p.prompt_behind(3, &labels3, &[inst]));
+    let (rgb7, truth7) = render(&bg, &tex, (0.0, 0.0), centre(7), 1.0);
+    labels.fill(0);
+    let found = p.propagate_frame(7, &rgb7, W, H, &mut labels);
+    assert_eq!(found.len(), 1);
+    let v = iou(&labels, &truth7);
+    assert!(v >= 0.8, "IoU at frame 7 after a prompt on frame 3: {v}");
+
+    // The run's first keyframe: kept while segmented, nothing propagated
+    // before it; its prompt is followed into the next frame.
+    let mut fresh = LkPropagator::new(PropagatorParams::default());
+    let (rgb0, at0) = render(&bg, &tex, (0.0, 0.0), centre(0), 1.0);
+    fresh.keep_image(0, &rgb0, W, H);
+    let labels0: Vec<u8> = at0.iter().map(|&m| m as u8).collect();
+    assert!(fresh.prompt_behind(0, &labels0, &[inst]));
+    let (rgb1, truth1) = render(&bg, &tex, (0.0, 0.0), centre(1), 1.0);
+    labels.fill(0);
+    assert_eq!(fresh.propagate_frame(1, &rgb1, W, H, &mut labels).len(), 1);
+    assert!(iou(&labels, &truth1) >= 0.85);
+}
+
 #[test]
 fn follows_a_moving_object_over_a_static_background() {
     let (bg, tex) = (tum("1305031229.528748.png"), tum("1305031234.493831.png"));

@@ -20,8 +20,8 @@ use pipeline::transport::{attach, qos, wait, waitset, Svc, Wake};
 use pipeline::views::{FrameView, MasksView};
 use shared_types::names::Topic;
 use shared_types::{
-    frame_flags, mask_flags, FrameHeader, MaskSource, MasksHeader, Route, RouteKind, ServiceKind,
-    StageStamps, Track, TrackState,
+    frame_flags, mask_flags, FrameHeader, MaskSource, MasksHeader, Pose, Route, RouteKind,
+    ServiceKind, StageStamps, Track, TrackState,
 };
 use slam::rgbd_tracker::{MapFiles, RgbdTracker};
 use slam::scripted::ScriptedTracker;
@@ -121,6 +121,7 @@ fn run(ctx: ServiceContext, map_out: Option<&std::path::Path>, files: MapFiles) 
     let masks = ctx.transport.slice_receiver::<MasksHeader>(Topic::Masks)?;
     let routes = ctx.transport.receiver::<Route>(Topic::Routes)?;
     let tracks = ctx.transport.sender::<Track>(Topic::Tracks)?;
+    let poses = ctx.transport.sender::<Pose>(Topic::Poses)?;
     let ws = waitset()?;
     let _a = attach(&ws, &frames)?;
     let _b = attach(&ws, &masks)?;
@@ -222,6 +223,7 @@ fn run(ctx: ServiceContext, map_out: Option<&std::path::Path>, files: MapFiles) 
 
         while let Some(track) = track_next_ready(&mut st, &mut *tracker, realtime)? {
             tracks.send(track)?;
+            poses.send(Pose::of(&track))?;
         }
         if let (Some(waiting), Some(last)) = (st.pending_keyframe, st.last) {
             if last.seq > waiting + SEGMENTER_PATIENCE {

@@ -74,3 +74,44 @@ fn a_segmenter_slower_than_five_frame_periods_does_not_starve_tracking() {
     assert_no_shm_left(&run.run_id);
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn a_slam_far_slower_than_the_camera_makes_the_reader_leave_frames_out() {
+    let dir = scratch("slow-slam");
+    // 30 fps, SLAM 150 ms per frame: decoding every frame would only burn
+    // CPU; the reader leaves frames out once 3 decoded ones wait.
+    let config = write_config(
+        &dir,
+        &format!("[services.slam]\nbackend = \"scripted\"\nwork_ms = 150\n{NO_MASK_MODELS}"),
+    );
+    let frames = 60;
+    let run = run(
+        &shared_tum(),
+        &config,
+        &dir.join("runs"),
+        &format!("slowslam{}", std::process::id()),
+        &["--mode", "realtime", "--limit", &frames.to_string()],
+    );
+    assert!(run.success(), "{}", run.stderr());
+    let rows = read_rows(&run.run_dir);
+    let mut seqs: Vec<u64> = rows.iter().map(|r| r["seq"].parse().unwrap()).collect();
+    seqs.sort_unstable();
+    assert_eq!(
+        seqs,
+        (0..frames as u64).collect::<Vec<_>>(),
+        "one row per frame"
+    );
+    let left_out = rows
+        .iter()
+        .filter(|r| r["note"].contains("left out by the camera-reader"))
+        .count();
+    let tracked = rows.iter().filter(|r| r["state"] == "ok").count();
+    assert!(left_out > 10, "frames left out undecoded: {left_out}");
+    assert!(tracked >= 8, "tracked {tracked}");
+    assert!(rows
+        .iter()
+        .filter(|r| r["note"].contains("left out"))
+        .all(|r| r["state"] == "dropped"));
+    assert_no_shm_left(&run.run_id);
+    std::fs::remove_dir_all(&dir).ok();
+}

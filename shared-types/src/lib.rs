@@ -78,6 +78,10 @@ pub mod frame_flags {
     /// service restart (lockstep recovery). Consumers that already handled it
     /// ignore it.
     pub const REPLAY: u32 = 1 << 2;
+    /// Real time: the camera-reader left this frame out (not decoded, empty
+    /// payload) because the pipeline was still busy with older ones, as a
+    /// camera driver drops frames for a slow reader. Recorded as dropped.
+    pub const DROPPED_AT_SOURCE: u32 = 1 << 3;
 }
 
 /// Length of the fixed, NUL-padded UTF-8 error text carried by headers.

@@ -136,6 +136,21 @@ impl Player {
         Ok(())
     }
 
+    /// Frame `seq` left out (real time, the pipeline is behind): its header
+    /// only, flagged, so that the run still accounts for it.
+    fn publish_dropped(&self, seq: u64) -> Result<()> {
+        let Some(entry) = self.frames.get(seq as usize) else {
+            return Ok(());
+        };
+        let mut header = header_for(seq, entry, self.geometry);
+        header.flags |= frame_flags::DROPPED_AT_SOURCE;
+        header.stamps.capture_ns = now_ns();
+        header.stamps.published_ns = header.stamps.capture_ns;
+        let mut sample = self.sender.loan(0)?;
+        *sample.user_header_mut() = header;
+        self.sender.publish(sample)
+    }
+
     fn publish_end(&self) -> Result<()> {
         let mut sample = self.sender.loan(0)?;
         *sample.user_header_mut() = FrameHeader {
@@ -172,7 +187,14 @@ fn run(ctx: ServiceContext, start_seq: u64) -> Result<()> {
 
     match ctx.config.run.mode {
         ClockMode::Lockstep => lockstep(&player, &ws, &tracks, &control, start_seq),
-        ClockMode::Realtime => realtime(&player, &ws, &control, start_seq, ctx.config.run.speed),
+        ClockMode::Realtime => realtime(
+            &player,
+            &ws,
+            &tracks,
+            &control,
+            start_seq,
+            ctx.config.run.speed,
+        ),
     }
 }
 
@@ -204,9 +226,15 @@ fn lockstep(
     }
 }
 
+/// Real time: decoded frames newer than SLAM's newest Track beyond which
+/// the next one is left out undecoded (decoding a frame nobody will track
+/// takes the cores the pipeline needs; a 60 fps PNG source costs most of one).
+const SOURCE_BACKLOG: u64 = 3;
+
 fn realtime(
     player: &Player,
     ws: &Waiter,
+    tracks: &Receiver<Track, ()>,
     control: &Receiver<Control, ()>,
     start_seq: u64,
     speed: f64,
@@ -218,6 +246,8 @@ fn realtime(
         .get(start_seq as usize)
         .map(|f| f.timestamp)
         .unwrap_or(0.0);
+    let mut newest_tracked: Option<u64> = None;
+    let mut decoded: Vec<u64> = Vec::new();
     for seq in start_seq..total {
         let due = t0 + ((player.frames[seq as usize].timestamp - first_ts) / speed * 1e9) as u64;
         loop {
@@ -230,7 +260,20 @@ fn realtime(
             }
             control.drain()?; // replays do not apply at camera rate
         }
-        player.publish(seq, false)?;
+        if let Some(t) = tracks.drain()?.iter().map(|t| t.seq).max() {
+            newest_tracked = newest_tracked.max(Some(t));
+        }
+        // Decoded frames newer than the newest tracked one; until SLAM
+        // answers at all (models still warming up) nothing is left out.
+        if let Some(t) = newest_tracked {
+            decoded.retain(|&d| d > t);
+        }
+        if newest_tracked.is_some() && decoded.len() as u64 >= SOURCE_BACKLOG {
+            player.publish_dropped(seq)?;
+        } else {
+            player.publish(seq, false)?;
+            decoded.push(seq);
+        }
     }
     player.publish_end()?;
     while wait(ws, Duration::from_secs(1))? != Wake::Terminate {

@@ -100,7 +100,10 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
         frames.clear_wakeups();
         while let Some(sample) = frames.next_sample()? {
             let h = sample.user_header();
-            if h.has(frame_flags::BAD_INPUT) || h.has(frame_flags::END_OF_STREAM) {
+            if h.has(frame_flags::BAD_INPUT)
+                || h.has(frame_flags::END_OF_STREAM)
+                || h.has(frame_flags::DROPPED_AT_SOURCE)
+            {
                 continue;
             }
             held.retain(|s| s.user_header().seq != h.seq);

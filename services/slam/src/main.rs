@@ -164,7 +164,7 @@ fn run(ctx: ServiceContext, map_out: Option<&std::path::Path>, files: MapFiles) 
                 break;
             };
             let h = *sample.user_header();
-            if h.has(frame_flags::END_OF_STREAM) {
+            if h.has(frame_flags::END_OF_STREAM) || h.has(frame_flags::DROPPED_AT_SOURCE) {
                 continue;
             }
             if let Some(last) = st.last.filter(|l| h.seq <= l.seq) {

@@ -357,6 +357,21 @@ impl Supervisor {
         if self.rows.contains_key(&h.seq) {
             return Ok(());
         }
+        if h.has(frame_flags::DROPPED_AT_SOURCE) {
+            let dropped = self.pending.entry(h.seq).or_insert_with(|| Pending {
+                timestamp: h.source_timestamp,
+                bad: false,
+                stamps: h.stamps,
+                route: None,
+                routed_at: None,
+                note: String::new(),
+            });
+            dropped.timestamp = h.source_timestamp;
+            return self.record_dropped(
+                h.seq,
+                "left out by the camera-reader: the pipeline was busy with older frames",
+            );
+        }
         let bad = h.has(frame_flags::BAD_INPUT);
         let entry = self.pending.entry(h.seq).or_insert_with(|| Pending {
             timestamp: h.source_timestamp,

@@ -246,6 +246,10 @@ pub mod mask_flags {
     /// The worker could not produce masks for this frame (model failure);
     /// the label image is empty and SLAM tracks the frame unmasked.
     pub const FAILED: u32 = 1 << 0;
+    /// Real time: the routed frame was replaced by newer ones before the
+    /// worker's turn; no labels (0x0) follow. Tells SLAM's peers at once
+    /// that these masks will never come.
+    pub const GONE: u32 = 1 << 1;
 }
 
 /// User header of a masks sample. The slice payload is a `width*height` label

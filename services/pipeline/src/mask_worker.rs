@@ -115,6 +115,9 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
         if let Some(prompts) = &prompts {
             prompts.clear_wakeups();
             while let Some(sample) = prompts.next_sample()? {
+                if sample.user_header().flags & mask_flags::GONE != 0 {
+                    continue; // no masks came for that frame
+                }
                 let masks = MasksView::new(sample.user_header(), sample.payload())?;
                 if masks.source() != MaskSource::Segmenter {
                     continue;
@@ -145,9 +148,11 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
         }
         if realtime && pending.len() > 1 {
             // At camera rate only the newest routed frame is worth the work;
-            // the supervisor reports the others as dropped.
+            // the others are told gone (the supervisor records them dropped).
             let newest = pending.pop_back();
-            pending.clear();
+            for route in pending.drain(..) {
+                publish_gone(&masks_out, role, &route)?;
+            }
             pending.extend(newest);
         }
         while let Some(route) = pending.front().copied() {
@@ -161,6 +166,9 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
                     }
                     not_held += 1;
                     pending.pop_front();
+                    if realtime {
+                        publish_gone(&masks_out, role, &route)?;
+                    }
                     continue;
                 }
                 break; // the frame has not arrived yet
@@ -171,6 +179,24 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
             published += 1;
         }
     }
+}
+
+/// Real time: no masks will come for `route`'s frame (replaced before this
+/// worker's turn).
+fn publish_gone(
+    out: &crate::transport::Sender<[u8], MasksHeader>,
+    role: MaskSource,
+    route: &Route,
+) -> Result<()> {
+    let mut sample = out.loan(0)?;
+    *sample.user_header_mut() = MasksHeader {
+        seq: route.seq,
+        source: role as u32,
+        flags: mask_flags::GONE,
+        stamps: route.stamps,
+        ..Default::default()
+    };
+    out.publish(sample)
 }
 
 fn publish_masks(

@@ -33,15 +33,19 @@ fn iou(labels: &[u8], truth: &[bool]) -> f64 {
     synthetic::iou(labels, 1, truth)
 }
 
-fn prompt(p: &mut LkPropagator, rgb: &[u8], mask: &[bool]) {
-    let labels: Vec<u8> = mask.iter().map(|&m| m as u8).collect();
-    let inst = Instance {
+/// The one object of these tests, as the segmenter would report it.
+fn person() -> Instance {
+    Instance {
         object_id: 7,
         class_id: 0,
         score: 0.9,
         bbox: [0.0; 4],
-    };
-    p.prompt_with(rgb, W, H, &labels, &[inst]);
+    }
+}
+
+fn prompt(p: &mut LkPropagator, rgb: &[u8], mask: &[bool]) {
+    let labels: Vec<u8> = mask.iter().map(|&m| m as u8).collect();
+    p.prompt_with(rgb, W, H, &labels, &[person()]);
 }
 
 /// Real time: the segmenter's masks for frame 3 come while frame 6 is
@@ -63,12 +67,7 @@ fn a_late_prompt_is_carried_forward_from_its_own_frame() {
     }
     let (_, at3) = render(&bg, &tex, (0.0, 0.0), centre(3), 1.0);
     let labels3: Vec<u8> = at3.iter().map(|&m| m as u8).collect();
-    let inst = Instance {
-        object_id: 7,
-        class_id: 0,
-        score: 0.9,
-        bbox: [0.0; 4],
-    };
+    let inst = person();
     assert!(
         !p.prompt_behind(99, &labels3, &[inst]),
         "frame 99 was never seen"

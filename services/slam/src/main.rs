@@ -187,6 +187,9 @@ fn run(ctx: ServiceContext, map_out: Option<&std::path::Path>, files: MapFiles) 
             let Some(sample) = masks.next_sample()? else {
                 break;
             };
+            if sample.user_header().flags & mask_flags::GONE != 0 {
+                continue; // that frame will not be tracked (the supervisor drops it)
+            }
             let (seq, source) = (sample.user_header().seq, sample.user_header().source);
             if source == MaskSource::Segmenter as u32 {
                 st.last_segmented = st.last_segmented.max(Some(seq));

@@ -84,6 +84,14 @@ impl Router {
         self.prompted = true;
     }
 
+    /// The segmenter will not answer for `seq` (its frame was replaced
+    /// before its turn): it is free again, with no new prompt.
+    pub fn on_segment_gone(&mut self, seq: u64) {
+        if self.segmenting.is_some_and(|s| s <= seq) {
+            self.segmenting = None;
+        }
+    }
+
     /// A worker died: the frame it was segmenting will not come back.
     pub fn on_worker_lost(&mut self) {
         self.segmenting = None;

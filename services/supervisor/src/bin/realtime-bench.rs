@@ -213,13 +213,12 @@ fn run_once(
 /// last frame's timestamp, played `speed` times as fast.
 fn figures(rows: &[FrameRow], speed: f64, run_dir: PathBuf) -> RunFigures {
     let tracked: Vec<&FrameRow> = rows.iter().filter(|r| r.is_tracked()).collect();
+    // A frame the supervisor never saw (a queue overflowed at camera rate)
+    // is recorded without a timestamp (0).
+    let stamps = || rows.iter().map(|r| r.timestamp).filter(|&t| t > 0.0);
     let (first, last) = (
-        rows.iter()
-            .map(|r| r.timestamp)
-            .fold(f64::INFINITY, f64::min),
-        rows.iter()
-            .map(|r| r.timestamp)
-            .fold(f64::NEG_INFINITY, f64::max),
+        stamps().fold(f64::INFINITY, f64::min),
+        stamps().fold(f64::NEG_INFINITY, f64::max),
     );
     let seconds = ((last - first) / speed).max(1e-9);
     let dropped = rows.iter().filter(|r| r.state == "dropped").count();

@@ -131,6 +131,13 @@ impl FrameHeader {
     pub fn has(&self, flag: u32) -> bool {
         self.flags & flag != 0
     }
+    /// Whether the payload holds the frame's pixels (not a bad, left-out
+    /// or end-of-stream header).
+    pub fn carries_pixels(&self) -> bool {
+        !self.has(frame_flags::BAD_INPUT)
+            && !self.has(frame_flags::END_OF_STREAM)
+            && !self.has(frame_flags::DROPPED_AT_SOURCE)
+    }
     pub fn rgb_len(&self) -> usize {
         self.width as usize * self.height as usize * 3
     }
@@ -288,6 +295,9 @@ impl Default for MasksHeader {
 }
 
 impl MasksHeader {
+    pub fn has(&self, flag: u32) -> bool {
+        self.flags & flag != 0
+    }
     pub fn instances(&self) -> &[Instance] {
         &self.instances[..(self.num_instances as usize).min(MAX_INSTANCES)]
     }

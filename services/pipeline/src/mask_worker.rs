@@ -12,8 +12,7 @@ use anyhow::Result;
 use iceoryx2::sample::Sample;
 use shared_types::names::Topic;
 use shared_types::{
-    frame_flags, mask_flags, FrameHeader, Instance, MaskSource, MasksHeader, Route, RouteKind,
-    MAX_INSTANCES,
+    mask_flags, FrameHeader, Instance, MaskSource, MasksHeader, Route, RouteKind, MAX_INSTANCES,
 };
 
 use crate::clock::now_ns;
@@ -100,10 +99,7 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
         frames.clear_wakeups();
         while let Some(sample) = frames.next_sample()? {
             let h = sample.user_header();
-            if h.has(frame_flags::BAD_INPUT)
-                || h.has(frame_flags::END_OF_STREAM)
-                || h.has(frame_flags::DROPPED_AT_SOURCE)
-            {
+            if !h.carries_pixels() {
                 continue;
             }
             held.retain(|s| s.user_header().seq != h.seq);
@@ -115,29 +111,21 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
         if let Some(prompts) = &prompts {
             prompts.clear_wakeups();
             while let Some(sample) = prompts.next_sample()? {
-                if sample.user_header().flags & mask_flags::GONE != 0 {
+                if sample.user_header().has(mask_flags::GONE) {
                     continue; // no masks came for that frame
                 }
                 let masks = MasksView::new(sample.user_header(), sample.payload())?;
                 if masks.source() != MaskSource::Segmenter {
                     continue;
                 }
-                let frame = held
-                    .iter()
-                    .find(|s| s.user_header().seq == masks.header.seq)
-                    .and_then(|s| FrameView::new(s.user_header(), s.payload()).ok());
-                model.prompt(frame.as_ref(), &masks);
+                model.prompt(held_frame(&held, masks.header.seq).as_ref(), &masks);
             }
         }
         for r in routes.drain()? {
             tracing::debug!(seq = r.seq, kind = r.kind, held = held.len(), "route");
             let kind = RouteKind::from_u32(r.kind);
             if role == MaskSource::Propagator && kind == Some(RouteKind::Segment) {
-                if let Some(frame) = held
-                    .iter()
-                    .find(|s| s.user_header().seq == r.seq)
-                    .and_then(|s| FrameView::new(s.user_header(), s.payload()).ok())
-                {
+                if let Some(frame) = held_frame(&held, r.seq) {
                     model.keep(&frame);
                 }
             }
@@ -179,6 +167,13 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
             published += 1;
         }
     }
+}
+
+/// Frame `seq` among the held samples, as a view.
+fn held_frame(held: &VecDeque<FrameSample>, seq: u64) -> Option<FrameView<'_>> {
+    held.iter()
+        .find(|s| s.user_header().seq == seq)
+        .and_then(|s| FrameView::new(s.user_header(), s.payload()).ok())
 }
 
 /// Real time: no masks will come for `route`'s frame (replaced before this

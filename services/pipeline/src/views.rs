@@ -3,7 +3,7 @@
 //! service can index without surprises.
 
 use anyhow::{bail, Result};
-use shared_types::{frame_flags, read_error_text, FrameHeader, MaskSource, MasksHeader};
+use shared_types::{read_error_text, FrameHeader, MaskSource, MasksHeader};
 
 /// One frame read in place.
 #[derive(Clone, Copy)]
@@ -18,7 +18,7 @@ pub struct FrameView<'a> {
 impl<'a> FrameView<'a> {
     /// Checks that the payload holds what the header announces.
     pub fn new(header: &'a FrameHeader, payload: &'a [u8]) -> Result<Self> {
-        if header.has(frame_flags::BAD_INPUT) || header.has(frame_flags::END_OF_STREAM) {
+        if !header.carries_pixels() {
             bail!(
                 "frame {} carries no pixels (flags {:#x}): {}",
                 header.seq,

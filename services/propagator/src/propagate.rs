@@ -267,6 +267,12 @@ impl LkPropagator {
         else {
             return false;
         };
+        self.start_from(pyramid, labels, instances);
+        true
+    }
+
+    /// Objects of `labels` follow from the image of `pyramid` on.
+    fn start_from(&mut self, pyramid: Arc<Pyramid>, labels: &[u8], instances: &[Instance]) {
         self.set_objects(labels, instances);
         // The size propagation checks the next frame against.
         if let Some(base) = pyramid.levels.first() {
@@ -274,7 +280,6 @@ impl LkPropagator {
             self.height = base.height;
         }
         self.prev = Some(pyramid);
-        true
     }
 
     fn set_objects(&mut self, labels: &[u8], instances: &[Instance]) {
@@ -300,13 +305,11 @@ impl LkPropagator {
         labels: &[u8],
         instances: &[Instance],
     ) {
-        self.width = width;
-        self.height = height;
-        self.prev = Some(Arc::new(Pyramid::new(
+        let pyramid = Pyramid::new(
             Gray::from_rgb(rgb, width, height),
             self.params.pyramid_levels,
-        )));
-        self.set_objects(labels, instances);
+        );
+        self.start_from(Arc::new(pyramid), labels, instances);
     }
 
     /// Number of objects still followed.

@@ -108,9 +108,6 @@ pub struct System {
     mapped: MappingCounts,
     /// A keyframe waiting for its better masks.
     pending_keyframe: Option<PendingKeyframe>,
-    /// The keyframe rule picked a frame that could not be one
-    /// ([`KeyframeTiming::NotThisFrame`]): the hint asks for the next.
-    keyframe_wanted: bool,
 }
 
 /// What the keyframe rule made of a tracked frame.
@@ -165,7 +162,6 @@ impl System {
             mapping_ms: 0.0,
             mapped: MappingCounts::default(),
             pending_keyframe: None,
-            keyframe_wanted: false,
         }
     }
 
@@ -329,7 +325,6 @@ impl System {
                 inliers: tracked.inliers,
             });
         }
-        self.keyframe_wanted = decision == Decision::Wanted;
         let next_needs_keyframe = !keyframe_inserted
             && self.pending_keyframe.is_none()
             && if self.localize_only {
@@ -337,7 +332,9 @@ impl System {
                 // keyframe cadence (and when lost).
                 self.tracking.refresh_due()
             } else {
-                self.keyframe_wanted || self.tracking.next_needs_keyframe(tracked.inliers)
+                // The rule picked a frame that could not be one
+                // (`NotThisFrame`): the hint asks for the next.
+                decision == Decision::Wanted || self.tracking.next_needs_keyframe(tracked.inliers)
             };
         let pose_for_output = self.tracking.last_pose().unwrap_or(tracked.pose_cw);
         FrameResult {
@@ -419,29 +416,22 @@ impl System {
         let wanted = !self.localize_only
             && self.pending_keyframe.is_none()
             && self.tracking.need_keyframe(tracked, frame);
-        match (wanted, timing) {
-            (true, KeyframeTiming::Now) => {
-                self.tracking.insert_keyframe(
-                    &mut self.map,
-                    frame,
-                    &tracked.pose_cw,
-                    &tracked.matched,
-                    tracked.inliers,
-                );
-                return Decision::Inserted;
-            }
-            (true, KeyframeTiming::AfterBetterMasks) => {
-                self.tracking.count_frame();
-                return Decision::Pending;
-            }
-            (true, KeyframeTiming::NotThisFrame) => {
-                self.tracking.count_frame();
-                return Decision::Wanted;
-            }
-            (false, _) => {}
+        if wanted && timing == KeyframeTiming::Now {
+            self.tracking.insert_keyframe(
+                &mut self.map,
+                frame,
+                &tracked.pose_cw,
+                &tracked.matched,
+                tracked.inliers,
+            );
+            return Decision::Inserted;
         }
         self.tracking.count_frame();
-        Decision::None
+        match (wanted, timing) {
+            (true, KeyframeTiming::AfterBetterMasks) => Decision::Pending,
+            (true, KeyframeTiming::NotThisFrame) => Decision::Wanted,
+            _ => Decision::None,
+        }
     }
 
     /// Whether a keyframe waits for [`System::complete_keyframe`].

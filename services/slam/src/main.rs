@@ -142,9 +142,7 @@ fn run(ctx: ServiceContext, map_out: Option<&std::path::Path>, files: MapFiles) 
     };
     loop {
         if wait(&ws, Duration::from_secs(1))? == Wake::Terminate {
-            if st.pending_keyframe.is_some() {
-                tracker.complete_keyframe(None);
-            }
+            // (`finish` inserts a keyframe still waiting for its masks.)
             tracker.finish().map_err(anyhow::Error::msg)?;
             if let Some(path) = map_out {
                 let points = tracker.map_points();
@@ -187,18 +185,19 @@ fn run(ctx: ServiceContext, map_out: Option<&std::path::Path>, files: MapFiles) 
             let Some(sample) = masks.next_sample()? else {
                 break;
             };
-            if sample.user_header().flags & mask_flags::GONE != 0 {
+            if sample.user_header().has(mask_flags::GONE) {
                 continue; // that frame will not be tracked (the supervisor drops it)
             }
-            let (seq, source) = (sample.user_header().seq, sample.user_header().source);
-            if source == MaskSource::Segmenter as u32 {
+            let seq = sample.user_header().seq;
+            let segmented = from_segmenter(&sample);
+            if segmented {
                 st.last_segmented = st.last_segmented.max(Some(seq));
                 if let Some(waiting) = st.pending_keyframe.filter(|&k| k <= seq) {
                     // The pending keyframe's own masks (or a newer frame's:
                     // its own will not come) complete it.
                     let own = waiting == seq;
                     let view = MasksView::new(sample.user_header(), sample.payload());
-                    let failed = sample.user_header().flags & mask_flags::FAILED != 0;
+                    let failed = sample.user_header().has(mask_flags::FAILED);
                     let masks = view.ok().filter(|_| own && !failed);
                     tracker.complete_keyframe(masks.as_ref());
                     st.pending_keyframe = None;
@@ -211,10 +210,8 @@ fn run(ctx: ServiceContext, map_out: Option<&std::path::Path>, files: MapFiles) 
                 // its prompt), or a propagator's after the segmenter's.
                 continue;
             }
-            let segmented = |m: &MasksSample| {
-                m.user_header().seq == seq && m.user_header().source == MaskSource::Segmenter as u32
-            };
-            if source != MaskSource::Segmenter as u32 && st.masks.iter().any(segmented) {
+            let segmented_held = |m: &MasksSample| m.user_header().seq == seq && from_segmenter(m);
+            if !segmented && st.masks.iter().any(segmented_held) {
                 continue; // a frame's segmenter masks beat its propagated ones
             }
             st.masks.retain(|m| m.user_header().seq != seq);
@@ -279,6 +276,10 @@ fn track_next_ready(
     Ok(Some(track))
 }
 
+fn from_segmenter(m: &MasksSample) -> bool {
+    m.user_header().source == MaskSource::Segmenter as u32
+}
+
 /// When the frame at `index` may become a keyframe. Lockstep: now (its
 /// route gave it the segmenter's masks when a keyframe was asked for).
 /// Real time: a frame tracked with propagated masks while the segmenter
@@ -290,9 +291,10 @@ fn keyframe_timing(st: &State, index: usize, realtime: bool) -> KeyframeTiming {
         return KeyframeTiming::Now;
     }
     let seq = st.frames[index].sample.user_header().seq;
-    let segmented_masks = st.masks.iter().any(|m| {
-        m.user_header().seq == seq && m.user_header().source == MaskSource::Segmenter as u32
-    });
+    let segmented_masks = st
+        .masks
+        .iter()
+        .any(|m| m.user_header().seq == seq && from_segmenter(m));
     let route = st
         .routes
         .get(&seq)
@@ -330,7 +332,7 @@ fn make_track(
     let masks_view = match masks_sample {
         Some(m) if RouteKind::from_u32(route.kind) != Some(RouteKind::Skip) => {
             stamps = m.user_header().stamps;
-            let failed = m.user_header().flags & mask_flags::FAILED != 0;
+            let failed = m.user_header().has(mask_flags::FAILED);
             (!failed)
                 .then(|| MasksView::new(m.user_header(), m.payload()))
                 .transpose()?

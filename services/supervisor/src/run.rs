@@ -382,21 +382,6 @@ impl Supervisor {
         if self.rows.contains_key(&h.seq) {
             return Ok(());
         }
-        if h.has(frame_flags::DROPPED_AT_SOURCE) {
-            let dropped = self.pending.entry(h.seq).or_insert_with(|| Pending {
-                timestamp: h.source_timestamp,
-                bad: false,
-                stamps: h.stamps,
-                route: None,
-                routed_at: None,
-                note: String::new(),
-            });
-            dropped.timestamp = h.source_timestamp;
-            return self.record_dropped(
-                h.seq,
-                "left out by the camera-reader: the pipeline was busy with older frames",
-            );
-        }
         let bad = h.has(frame_flags::BAD_INPUT);
         let entry = self.pending.entry(h.seq).or_insert_with(|| Pending {
             timestamp: h.source_timestamp,
@@ -411,6 +396,12 @@ impl Supervisor {
             },
         });
         entry.stamps = h.stamps;
+        if h.has(frame_flags::DROPPED_AT_SOURCE) {
+            return self.record_dropped(
+                h.seq,
+                "left out by the camera-reader: the pipeline was busy with older frames",
+            );
+        }
         if let Some(kind) = entry.route {
             return send_route(routes, h.seq, kind, h.stamps, h.has(frame_flags::REPLAY));
         }
@@ -747,7 +738,10 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
         let last_segment = old_rows
             .iter()
             .rev()
-            .find(|r| r.route == "segment" || r.route == "segment-behind")
+            .find(|r| {
+                r.route == RouteKind::Segment.as_str()
+                    || r.route == RouteKind::SegmentBehind.as_str()
+            })
             .map(|r| r.seq);
         router.resume(last.next_keyframe, last_segment);
         tracing::info!(frames = old_rows.len(), "resuming run {}", info.run_id);
@@ -911,7 +905,7 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
         masks.clear_wakeups();
         while let Some(sample) = masks.next_sample()? {
             let h = *sample.user_header();
-            if h.flags & mask_flags::GONE != 0 {
+            if h.has(mask_flags::GONE) {
                 sup.on_masks_gone(&h)?;
                 continue;
             }

@@ -204,9 +204,11 @@ fn run_once(
                 .map(|s| if p99 { s.p99_ms } else { s.p50_ms })
         })
     };
-    Ok(figures(&rows, cfg.run.speed, dir.clone())
-        .with_latency(stage("end_to_end", false), stage("end_to_end", true))
-        .with_ate(report.and_then(|r| r.eval.as_ref()).map(|e| e.ate_rmse_m)))
+    let mut f = figures(&rows, cfg.run.speed, dir.clone());
+    f.end_to_end_p50_ms = stage("end_to_end", false);
+    f.end_to_end_p99_ms = stage("end_to_end", true);
+    f.ate_rmse_m = report.and_then(|r| r.eval.as_ref()).map(|e| e.ate_rmse_m);
+    Ok(f)
 }
 
 /// Rates from a run's frame rows; the stream lasts from its first to its
@@ -235,18 +237,6 @@ fn figures(rows: &[FrameRow], speed: f64, run_dir: PathBuf) -> RunFigures {
         end_to_end_p99_ms: None,
         ate_rmse_m: None,
         run_dir,
-    }
-}
-
-impl RunFigures {
-    fn with_latency(mut self, p50: Option<f64>, p99: Option<f64>) -> Self {
-        self.end_to_end_p50_ms = p50;
-        self.end_to_end_p99_ms = p99;
-        self
-    }
-    fn with_ate(mut self, ate: Option<f64>) -> Self {
-        self.ate_rmse_m = ate;
-        self
     }
 }
 

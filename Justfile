@@ -26,6 +26,12 @@ setup:
         rm -rf .cache/wheels
     fi
     echo "$want  $lib" | sha256sum --check --quiet || { echo "error: $lib does not match its pinned sha256; delete it and run just setup again" >&2; exit 1; }
+    (cd assets/vocabulary && sha256sum --check --quiet orb-k10-l4.vocab.sha256) || { echo "error: assets/vocabulary/orb-k10-l4.vocab does not match its pinned sha256; rebuild it with just vocab" >&2; exit 1; }
+
+# Retrain the shipped bag-of-words vocabulary (place recognition) from the shared TUM frames, and pin its sha256.
+vocab: build
+    ./target/release/dynslam vocab train --out assets/vocabulary/orb-k10-l4.vocab "{{tum}}/rgb"
+    cd assets/vocabulary && sha256sum orb-k10-l4.vocab > orb-k10-l4.vocab.sha256
 
 # Whole pipeline -> run folder with report.md. No path: the embedded default scene (rendered room, people walking); else a TUM folder.
 run dataset="" *args="": build setup

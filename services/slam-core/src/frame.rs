@@ -161,6 +161,7 @@ impl Frame {
                 .map(|d| u - camera.bf / d),
             info: 1.0 / (sigma * sigma),
             descriptor: self.descs[k],
+            angle: self.kps[k].angle,
         }
     }
 }

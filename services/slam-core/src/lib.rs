@@ -16,13 +16,15 @@
 //! - [`local_mapping`]: culling, triangulation, fusion, local BA, on its own
 //!   thread; map checkpoints.
 //! - [`geometry`]: the RANSAC driver, Umeyama alignment, PnP.
+//! - [`place_recognition`]: the ORB vocabulary (bag of words) and the
+//!   keyframe database; relocalisation finds its candidates there.
 //! - [`optimizer`]: motion-only pose optimisation, local bundle adjustment.
 //! - [`io`]: trajectories, PLY, the map file.
 //! - [`eval`]: ATE / RPE as evo defines them.
 //! - [`system`]: the facade.
 //!
-//! Loop closing and place recognition (`loop_closing`, `vocabulary`) are
-//! not here yet; see the README for how a loop closer will share the map.
+//! Loop closing (`loop_closing`) is not here yet; see the README for how a
+//! loop closer will share the map.
 
 pub mod camera;
 pub mod eval;
@@ -36,6 +38,7 @@ pub mod map;
 pub mod matcher;
 pub mod optimizer;
 pub mod params;
+pub mod place_recognition;
 pub mod rng;
 pub mod system;
 pub mod tracking;

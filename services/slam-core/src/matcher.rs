@@ -1,6 +1,6 @@
 //! Descriptor matching, in one place: a frame against map points by
-//! projection (tracking), a frame against a keyframe's points by
-//! descriptor alone (relocalisation), and two keyframes' spare keypoints
+//! projection (tracking), a frame against a keyframe's points by bag of
+//! words (relocalisation), and two keyframes' spare keypoints
 //! along the epipolar line (triangulation). Fusion's search, which merges
 //! as it goes, is in [`crate::local_mapping::fusion`].
 
@@ -10,6 +10,7 @@ use crate::camera::Camera;
 use crate::features::orb::{hamming, Descriptor, MATCH_MAX_DISTANCE};
 use crate::frame::Frame;
 use crate::map::{KeyFrame, Map, SpareKeypoint};
+use crate::place_recognition::{FeatureVector, Vocabulary};
 
 /// The best match must beat the second best along the line by this ratio:
 /// a repeated texture gives many candidates on one epipolar line.
@@ -17,8 +18,9 @@ const EPIPOLAR_RATIO: f64 = 0.9;
 /// Chi-square (1 degree of freedom, 95 %) of a keypoint's distance to the
 /// epipolar line, in units of its level's sigma.
 const EPIPOLAR_CHI2: f64 = 3.84;
-/// Relocalisation's ratio test between the best and second-best point.
-const RELOCALISATION_RATIO: f64 = 0.8;
+/// Matching by bag of words: the best keypoint must beat the second best
+/// by this ratio (ORB-SLAM2's relocalisation matcher: 0.75).
+const BOW_RATIO: f64 = 0.75;
 
 /// A search by projection.
 #[derive(Debug, Clone, Copy)]
@@ -95,28 +97,105 @@ pub fn matched_pairs(matched: &[Option<usize>]) -> Vec<(usize, usize)> {
         .collect()
 }
 
-/// For each descriptor, the point of keyframe `kf` closest in descriptor
-/// space when it is below the threshold and clearly better than the
-/// second best (ratio test): (keypoint index, point id).
-pub fn match_to_keyframe(map: &Map, kf: &KeyFrame, descs: &[Descriptor]) -> Vec<(usize, usize)> {
-    let mut pairs = Vec::new();
-    for (k, d) in descs.iter().enumerate() {
-        let (mut b1, mut b2, mut bp) = (u32::MAX, u32::MAX, 0);
-        for &p in &kf.points {
-            let h = hamming(d, &map.points[p].descriptor);
-            if h < b1 {
-                b2 = b1;
-                b1 = h;
-                bp = p;
-            } else if h < b2 {
-                b2 = h;
+/// Matches of a frame's keypoints to the points of keyframe `kf` by bag of
+/// words (ORB-SLAM2's SearchByBoW): only descriptors under the same
+/// vocabulary node at the feature level are compared (`frame` is the
+/// frame's feature vector over `descs`); a keyframe measurement's best
+/// keypoint must be below the threshold and clearly better than the second
+/// best; a keypoint keeps its closest point; then only matches whose
+/// change of keypoint orientation agrees with the most common changes stay
+/// (a camera turns the whole image at once). (keypoint index, point id).
+pub fn match_by_bow(
+    map: &Map,
+    kf: &KeyFrame,
+    vocabulary: &Vocabulary,
+    frame: &FeatureVector,
+    descs: &[Descriptor],
+    angles: &[f32],
+) -> Vec<(usize, usize)> {
+    let kf_descs: Vec<Descriptor> = kf.measurements.iter().map(|m| m.descriptor).collect();
+    let kf_features = vocabulary.features(&kf_descs);
+    // (point, distance, measurement index) per keypoint.
+    let mut best: Vec<Option<(usize, u32, usize)>> = vec![None; descs.len()];
+    let (a, b) = (&kf_features.0, &frame.0);
+    let (mut i, mut j) = (0, 0);
+    while i < a.len() && j < b.len() {
+        match a[i].0.cmp(&b[j].0) {
+            std::cmp::Ordering::Less => i += 1,
+            std::cmp::Ordering::Greater => j += 1,
+            std::cmp::Ordering::Equal => {
+                for &m in &a[i].1 {
+                    let p = kf.points[m as usize];
+                    if !map.points[p].is_live() {
+                        continue;
+                    }
+                    let d = &kf_descs[m as usize];
+                    let (mut b1, mut b2, mut bk) = (u32::MAX, u32::MAX, 0);
+                    for &k in &b[j].1 {
+                        let h = hamming(d, &descs[k as usize]);
+                        if h < b1 {
+                            b2 = b1;
+                            b1 = h;
+                            bk = k as usize;
+                        } else if h < b2 {
+                            b2 = h;
+                        }
+                    }
+                    if b1 <= MATCH_MAX_DISTANCE
+                        && (b1 as f64) < BOW_RATIO * b2 as f64
+                        && best[bk].is_none_or(|(_, d, _)| b1 < d)
+                    {
+                        best[bk] = Some((p, b1, m as usize));
+                    }
+                }
+                i += 1;
+                j += 1;
             }
         }
-        if b1 <= MATCH_MAX_DISTANCE && (b1 as f64) < RELOCALISATION_RATIO * b2 as f64 {
-            pairs.push((k, bp));
-        }
     }
-    pairs
+    let matches: Vec<(usize, usize, usize)> = best
+        .iter()
+        .enumerate()
+        .filter_map(|(k, m)| m.map(|(p, _, i)| (k, p, i)))
+        .collect();
+    let rotations: Vec<f32> = matches
+        .iter()
+        .map(|&(k, _, i)| angles[k] - kf.measurements[i].angle)
+        .collect();
+    let keep = consistent_rotations(&rotations);
+    matches
+        .iter()
+        .zip(keep)
+        .filter_map(|(&(k, p, _), keep)| keep.then_some((k, p)))
+        .collect()
+}
+
+/// Bins of the histogram of orientation changes (ORB-SLAM2's 30).
+const ROTATION_BINS: usize = 30;
+
+/// Which of the orientation changes (radians) fall in the three most
+/// populated bins of their histogram (the second and third only when they
+/// hold at least a tenth of the first: ORB-SLAM2's ComputeThreeMaxima).
+pub(crate) fn consistent_rotations(rotations: &[f32]) -> Vec<bool> {
+    let bin = |r: f32| {
+        let turns = (r / std::f32::consts::TAU).rem_euclid(1.0);
+        ((turns * ROTATION_BINS as f32) as usize).min(ROTATION_BINS - 1)
+    };
+    let mut counts = [0usize; ROTATION_BINS];
+    for &r in rotations {
+        counts[bin(r)] += 1;
+    }
+    let mut order: Vec<usize> = (0..ROTATION_BINS).collect();
+    order.sort_by(|&a, &b| counts[b].cmp(&counts[a]).then(a.cmp(&b)));
+    let top = counts[order[0]];
+    let kept: Vec<usize> = order
+        .into_iter()
+        .take(3)
+        .enumerate()
+        .filter(|&(rank, b)| rank == 0 || counts[b] * 10 >= top)
+        .map(|(_, b)| b)
+        .collect();
+    rotations.iter().map(|&r| kept.contains(&bin(r))).collect()
 }
 
 /// Normalised image coordinates (z = 1) of a keypoint.

@@ -7,6 +7,8 @@
 //! [`crate::io::map_file`]; a loaded map is tracked in, in its own world
 //! frame, after relocalisation. Not here yet (README): loop closing.
 
+use std::sync::Arc;
+
 use nalgebra::Isometry3;
 
 use crate::camera::{Bounds, Camera};
@@ -19,6 +21,7 @@ use crate::local_mapping::checkpoint::{CheckpointPolicy, Checkpointer};
 use crate::local_mapping::LocalMapper;
 use crate::map::{Map, MappingCounts, MappingReport};
 use crate::params::SlamParams;
+use crate::place_recognition::Vocabulary;
 use crate::tracking::{Tracked, Tracking, TrackingState};
 
 /// Undistorted keypoint pixels and depths before the rolling-shutter
@@ -108,6 +111,8 @@ pub struct System {
     mapped: MappingCounts,
     /// A keyframe waiting for its better masks.
     pending_keyframe: Option<PendingKeyframe>,
+    /// Bag-of-words vocabulary of the keyframe database (relocalisation).
+    vocabulary: Arc<Vocabulary>,
 }
 
 /// What the keyframe rule made of a tracked frame.
@@ -137,9 +142,10 @@ impl System {
     /// A system with an empty map: the first frame with depth starts it
     /// and defines the world frame.
     pub fn new(params: SlamParams, camera: Camera) -> Self {
+        let vocabulary = Vocabulary::embedded();
         let mapper = params
             .mapping_thread
-            .then(|| LocalMapper::spawn(camera, params))
+            .then(|| LocalMapper::spawn(camera, params, vocabulary.clone()))
             .and_then(|spawned| {
                 spawned
                     .map_err(|e| {
@@ -154,7 +160,8 @@ impl System {
             map: Map::default(),
             mapper,
             mapping: Mapping::Idle,
-            tracking: Tracking::new(camera, params),
+            tracking: Tracking::new(camera, params, vocabulary.clone()),
+            vocabulary,
             localize_only: false,
             checkpointer: None,
             keyframes_inserted: 0,
@@ -171,6 +178,10 @@ impl System {
     pub fn with_map(params: SlamParams, camera: Camera, file: MapFile) -> Self {
         let mut system = Self::new(params, camera);
         system.map = file.map;
+        let indexed = system.map.reindex(&system.vocabulary);
+        if indexed > 0 {
+            tracing::info!("{indexed} keyframes of the loaded map put in the keyframe database");
+        }
         system.tracking.start_lost();
         system
     }
@@ -512,6 +523,12 @@ impl System {
     }
 
     /// Keyframes this system inserted (a loaded map's own not counted).
+    /// The keyframe the last relocalisation found the camera at (by bag
+    /// of words, among all keyframes of the map).
+    pub fn last_relocalisation_keyframe(&self) -> Option<usize> {
+        self.tracking.relocalised_at
+    }
+
     pub fn keyframes_inserted(&self) -> usize {
         self.keyframes_inserted
     }
@@ -539,7 +556,9 @@ impl System {
                 }
             }
         }
-        let report = self.map.process_keyframe(id, &self.camera, &self.params);
+        let report = self
+            .map
+            .process_keyframe(id, &self.camera, &self.params, &self.vocabulary);
         if let Some(to_writer) = checkpoint {
             to_writer.offer(&self.map);
         }

@@ -15,3 +15,4 @@ pub mod report;
 pub mod routing;
 pub mod run;
 pub mod run_dir;
+pub mod vocab;

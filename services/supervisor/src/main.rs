@@ -201,6 +201,39 @@ enum Command {
         #[arg(long)]
         config: Option<PathBuf>,
     },
+    /// The bag-of-words vocabulary of place recognition (relocalisation):
+    /// train one, or describe a file.
+    Vocab {
+        #[command(subcommand)]
+        action: VocabAction,
+    },
+}
+
+#[derive(Debug, Subcommand)]
+enum VocabAction {
+    /// Train a vocabulary (hierarchical k-means over the SLAM's ORB
+    /// features) on PNG images; deterministic for a seed. The shipped one:
+    /// `dynslam vocab train --out assets/vocabulary/orb-k10-l4.vocab
+    /// ../shared/data/tum/rgbd_dataset_freiburg1_rpy_first300/rgb`.
+    Train {
+        /// The vocabulary file to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// Children per tree node (k).
+        #[arg(long, default_value_t = 10)]
+        branching: usize,
+        /// Tree depth (L): up to k^L words.
+        #[arg(long, default_value_t = 4)]
+        levels: usize,
+        /// Seed of k-means++ (same seed and images: same file).
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// PNG files, or folders whose *.png files are all used (name order).
+        #[arg(required = true)]
+        images: Vec<PathBuf>,
+    },
+    /// Words, tree shape, SHA-256, load time and training summary of a vocabulary file.
+    Info { file: PathBuf },
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -431,6 +464,31 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                 },
             };
             synth(&input, &output, &options, limit, config.as_deref()).map(|()| ExitCode::SUCCESS)
+        }
+        Command::Vocab { action } => {
+            match action {
+                VocabAction::Train {
+                    out,
+                    branching,
+                    levels,
+                    seed,
+                    images,
+                } => {
+                    let opts = slam_core::place_recognition::vocabulary::TrainOptions {
+                        branching,
+                        levels,
+                        seed,
+                    };
+                    let t = supervisor::vocab::train(&images, &out, opts)?;
+                    eprintln!(
+                        "vocab: {} words from {} features of {} images in {:.1} s",
+                        t.words, t.features, t.images, t.seconds
+                    );
+                    println!("{}  {}", t.sha256, out.display());
+                }
+                VocabAction::Info { file } => println!("{}", supervisor::vocab::info(&file)?),
+            }
+            Ok(ExitCode::SUCCESS)
         }
         Command::MasksEval {
             dataset,

@@ -23,7 +23,7 @@ use crate::params::SlamParams;
 pub const MAGIC: &[u8; 8] = b"DSLAMMAP";
 /// Bumped whenever the payload's layout changes; older files are refused
 /// with both versions named (no silent misreading).
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
 const HEADER: usize = 8 + 4 + 8 + 4;
 
 /// A temporary name beside `path`, unique per process and write (two
@@ -287,6 +287,7 @@ mod tests {
             ur: Some(90.0),
             info: 1.0,
             descriptor: [i as u64; 4],
+            angle: 0.0,
         };
         let ids: Vec<usize> = (0..10)
             .map(|i| {

@@ -199,6 +199,7 @@ mod tests {
                     ur: None,
                     info: 1.0,
                     descriptor: [0; 4],
+                    angle: 0.0,
                 },
                 1.0,
                 [0; 3],

@@ -214,6 +214,7 @@ mod tests {
             ur: depth.then(|| u - camera.bf / pc.z),
             info: 1.0,
             descriptor: descriptor(i),
+            angle: 0.0,
         }
     }
 

@@ -22,16 +22,19 @@ pub mod fusion;
 pub mod triangulation;
 
 use std::sync::mpsc::{channel, Receiver, Sender};
+use std::sync::Arc;
 use std::thread::JoinHandle;
 
 use crate::camera::Camera;
 use crate::map::{Map, MappingReport};
 use crate::params::SlamParams;
+use crate::place_recognition::Vocabulary;
 use checkpoint::CheckpointSender;
 
 impl Map {
     /// Local mapping after keyframe `id` was inserted (its points and
-    /// observations in place), in ORB-SLAM2's order: recent-point culling,
+    /// observations in place), in ORB-SLAM2's order: the keyframe into the
+    /// keyframe database (its bag of words from `vocabulary`), recent-point culling,
     /// new points triangulated with its covisible keyframes, duplicate
     /// points fused with theirs (each step as `params` enables it),
     /// covisibility edges and spanning-tree parent, local bundle adjustment
@@ -42,9 +45,11 @@ impl Map {
         id: usize,
         camera: &Camera,
         params: &SlamParams,
+        vocabulary: &Vocabulary,
     ) -> MappingReport {
         let t = std::time::Instant::now();
         let mut report = MappingReport::default();
+        self.index_keyframe(id, vocabulary);
         self.cull_points(id);
         let scale_factor = params.orb.scale_factor as f64;
         if params.triangulate {
@@ -79,8 +84,13 @@ pub struct LocalMapper {
 }
 
 impl LocalMapper {
-    /// Starts the thread (named `local-mapping`), which maps with `params`.
-    pub fn spawn(camera: Camera, params: SlamParams) -> std::io::Result<Self> {
+    /// Starts the thread (named `local-mapping`), which maps with `params`
+    /// and indexes keyframes with `vocabulary`.
+    pub fn spawn(
+        camera: Camera,
+        params: SlamParams,
+        vocabulary: Arc<Vocabulary>,
+    ) -> std::io::Result<Self> {
         let (jobs, inbox) = channel::<Job>();
         let (outbox, done) = channel();
         let worker = std::thread::Builder::new()
@@ -92,7 +102,7 @@ impl LocalMapper {
                     checkpoint,
                 } in inbox
                 {
-                    let report = map.process_keyframe(keyframe, &camera, &params);
+                    let report = map.process_keyframe(keyframe, &camera, &params, &vocabulary);
                     if let Some(to_writer) = checkpoint {
                         to_writer.offer(&map);
                     }

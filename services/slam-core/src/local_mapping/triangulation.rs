@@ -183,6 +183,7 @@ mod tests {
                         ur: None,
                         info: 1.0,
                         descriptor,
+                        angle: 0.0,
                     },
                     colour: [1, 2, 3],
                 }

@@ -12,6 +12,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::camera::Bounds;
 use crate::features::orb::Descriptor;
+use crate::place_recognition::{KeyframeDatabase, Vocabulary};
 
 /// Shared points that make two keyframes neighbours (ORB-SLAM2's 15).
 pub const COVISIBILITY_MIN: u32 = 15;
@@ -33,6 +34,8 @@ pub struct Map {
     pub keyframes: Vec<KeyFrame>,
     /// Points culled so far (their slots stay).
     pub(crate) culled_points: usize,
+    /// The mapped keyframes' bag-of-words vectors and their inverted index.
+    pub database: KeyframeDatabase,
 }
 
 /// What local mapping did for one keyframe.
@@ -137,6 +140,9 @@ pub struct KeyFrameObservation {
     pub info: f64,
     /// The keypoint's own descriptor (fusion compares map points with it).
     pub descriptor: Descriptor,
+    /// The keypoint's orientation (radians): matching by bag of words
+    /// keeps the matches whose rotation agrees with most others.
+    pub angle: f32,
 }
 
 impl KeyFrameObservation {
@@ -197,6 +203,16 @@ impl KeyFrame {
     /// Its camera centre in the world.
     pub fn centre(&self) -> Vector3<f64> {
         self.pose_cw.inverse().translation.vector
+    }
+
+    /// The descriptors of all its keypoints, with a point or spare: what
+    /// its bag-of-words vector is made of (masked features never got here).
+    pub fn descriptors(&self) -> Vec<Descriptor> {
+        self.measurements
+            .iter()
+            .map(|m| m.descriptor)
+            .chain(self.spare.iter().map(|s| s.measurement.descriptor))
+            .collect()
     }
 }
 
@@ -283,7 +299,8 @@ impl Map {
     /// points once, and they are live and list it as an observer (and the
     /// other way round); culled keyframes hold nothing; covisibility edges
     /// are symmetric and join live keyframes; spanning-tree parents are
-    /// live and older. The first broken one is described.
+    /// live and older; the keyframe database holds live keyframes only and
+    /// its index matches its vectors. The first broken one is described.
     pub fn check_invariants(&self) -> Result<(), String> {
         let kfs = self.keyframes.len();
         for (k, kf) in self.keyframes.iter().enumerate() {
@@ -359,7 +376,8 @@ impl Map {
                 self.culled_points
             ));
         }
-        Ok(())
+        self.database
+            .check(|k| self.keyframes.get(k).is_some_and(|kf| !kf.culled))
     }
 
     /// The `n` live keyframes sharing most points with keyframe `id`
@@ -383,11 +401,43 @@ impl Map {
         kf.parent = parent;
     }
 
+    /// Puts keyframe `id` in the keyframe database (its vector from
+    /// `vocabulary`); a database made with another vocabulary is rebuilt
+    /// first.
+    pub fn index_keyframe(&mut self, id: usize, vocabulary: &Vocabulary) {
+        if !self.database.is_made_with(vocabulary) {
+            self.reindex(vocabulary);
+        }
+        let vector = vocabulary.bow(&self.keyframes[id].descriptors());
+        self.database.add(id, vector);
+    }
+
+    /// Makes sure every live keyframe is in a database made with
+    /// `vocabulary` (a map from a file written with another vocabulary, or
+    /// with keyframes not yet mapped when it was saved). Returns how many
+    /// keyframes were (re)indexed.
+    pub fn reindex(&mut self, vocabulary: &Vocabulary) -> usize {
+        if !self.database.is_made_with(vocabulary) {
+            self.database = KeyframeDatabase::new(vocabulary);
+        }
+        let missing: Vec<usize> = self
+            .live_keyframes()
+            .filter(|(k, _)| self.database.vector(*k).is_none())
+            .map(|(k, _)| k)
+            .collect();
+        for &k in &missing {
+            let vector = vocabulary.bow(&self.keyframes[k].descriptors());
+            self.database.add(k, vector);
+        }
+        missing.len()
+    }
+
     /// Removes keyframe `k` from the map: its observations leave its points
     /// (a point nobody observes any more is culled), its edges leave the
     /// covisibility graph, and its children in the spanning tree take its
     /// parent as theirs.
     pub fn cull_keyframe(&mut self, k: usize) {
+        self.database.remove(k);
         let kf = &mut self.keyframes[k];
         kf.culled = true;
         let points = std::mem::take(&mut kf.points);
@@ -448,6 +498,7 @@ mod tests {
             ur: None,
             info: 1.0,
             descriptor: [i as u64; 4],
+            angle: 0.0,
         }
     }
 

@@ -12,6 +12,8 @@ mod local_map;
 mod relocalisation;
 pub(crate) mod rolling_shutter;
 
+use std::sync::Arc;
+
 use nalgebra::{Isometry3, Point3};
 
 use crate::camera::Camera;
@@ -20,6 +22,7 @@ use crate::map::{KeyFrame, Map, MapPoint, SpareKeypoint};
 use crate::matcher::{match_by_projection, matched_pairs, ProjectionSearch};
 use crate::optimizer::pose::{is_finite_pose, optimize_pose, renormalized, Observation};
 use crate::params::SlamParams;
+use crate::place_recognition::Vocabulary;
 
 /// Tracked frames the rolling-shutter correction estimates the motion over.
 const MOTION_HISTORY: usize = 3;
@@ -60,6 +63,8 @@ pub(crate) struct Tracked {
 pub struct Tracking {
     pub(crate) camera: Camera,
     pub(crate) params: SlamParams,
+    /// Turns a lost frame into a bag of words for the keyframe database.
+    pub(crate) vocabulary: Arc<Vocabulary>,
     /// Camera from world of the last tracked frame, and the motion since the one before.
     last_pose: Option<Isometry3<f64>>,
     /// The motion between the last two tracked frames, and the seconds
@@ -81,13 +86,16 @@ pub struct Tracking {
     /// The motion model came from `resume_motion` and no frame has been
     /// tracked with it yet.
     resumed: bool,
+    /// The keyframe the last relocalisation found the camera at.
+    pub(crate) relocalised_at: Option<usize>,
 }
 
 impl Tracking {
-    pub fn new(camera: Camera, params: SlamParams) -> Self {
+    pub fn new(camera: Camera, params: SlamParams, vocabulary: Arc<Vocabulary>) -> Self {
         Self {
             camera,
             params,
+            vocabulary,
             last_pose: None,
             velocity: None,
             recent: Vec::new(),
@@ -97,13 +105,14 @@ impl Tracking {
             lost: false,
             since_relocalisation: None,
             resumed: false,
+            relocalised_at: None,
         }
     }
 
     /// Nothing tracked yet: the next frame initialises (or, in a loaded
     /// map, relocalises).
     pub fn reset(&mut self) {
-        *self = Self::new(self.camera, self.params);
+        *self = Self::new(self.camera, self.params, self.vocabulary.clone());
     }
 
     /// Starts lost in an existing map: the next frames relocalise.
@@ -192,19 +201,27 @@ impl Tracking {
             inliers: 0,
             matched: Vec::new(),
         };
-        match self.relocalise(map, frame) {
-            Some(start) => {
-                let everything: Vec<usize> = map.live_points().map(|(p, _)| p).collect();
-                match self.track_from(map, frame, &everything, &start, 10.0) {
-                    Some(t) => Tracked {
-                        state: TrackingState::Relocalised,
-                        ..t
-                    },
-                    None => lost(start),
-                }
+        let (features, candidates) = self.relocalisation_candidates(map, frame);
+        let mut everything = Vec::new();
+        let mut tried = None;
+        for id in candidates {
+            let Some(start) = self.pose_at_keyframe(map, frame, &features, id) else {
+                continue;
+            };
+            if everything.is_empty() {
+                everything = map.live_points().map(|(p, _)| p).collect();
             }
-            None => lost(self.last_pose.unwrap_or_else(Isometry3::identity)),
+            // The RANSAC pose must hold against the whole map.
+            if let Some(t) = self.track_from(map, frame, &everything, &start, 10.0) {
+                self.relocalised_at = Some(id);
+                return Tracked {
+                    state: TrackingState::Relocalised,
+                    ..t
+                };
+            }
+            tried = Some(start);
         }
+        lost(tried.or(self.last_pose).unwrap_or_else(Isometry3::identity))
     }
 
     /// Two passes of match-by-projection and pose optimisation: wide from

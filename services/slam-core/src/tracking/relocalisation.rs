@@ -1,4 +1,6 @@
-//! Relocalisation of a lost frame against the map's keyframes.
+//! Relocalisation of a lost frame (ORB-SLAM2's Relocalization): candidate
+//! keyframes from the keyframe database by bag of words, matches by bag of
+//! words, then RANSAC on depth or pixels.
 
 use nalgebra::{Isometry3, Point3, Vector3};
 
@@ -8,58 +10,87 @@ use crate::geometry::alignment::fit_rigid;
 use crate::geometry::pnp::{pnp_ransac, PnpMatch};
 use crate::geometry::ransac::Ransac;
 use crate::map::Map;
-use crate::matcher::match_to_keyframe;
+use crate::matcher::match_by_bow;
 use crate::optimizer::pose::is_finite_pose;
+use crate::place_recognition::FeatureVector;
+
+/// Candidate keyframes a lost frame is tried at, at most: each costs a
+/// RANSAC and a search over the whole map.
+const MAX_TRIES: usize = 8;
 
 impl Tracking {
-    /// A pose (camera from world) for a lost frame: descriptor matches to
-    /// the points of each keyframe (newest first), then 3D-3D RANSAC on the
+    /// The keyframes a lost frame may be at, best first: the keyframe
+    /// database's candidates for the frame's bag of words (among all the
+    /// keyframes of the map, not only recent ones), with the frame's
+    /// feature vector for matching at them.
+    pub(super) fn relocalisation_candidates(
+        &self,
+        map: &Map,
+        frame: &Frame,
+    ) -> (FeatureVector, Vec<usize>) {
+        let (bow, features) = self.vocabulary.transform(&frame.descs);
+        let mut candidates = map
+            .database
+            .relocalisation_candidates(&bow, |k| map.best_covisible(k, 10));
+        candidates.truncate(MAX_TRIES);
+        (features, candidates)
+    }
+
+    /// A pose (camera from world) for a lost frame at keyframe `id`:
+    /// matches by bag of words to its points, then 3D-3D RANSAC on the
     /// depth of both sides, or, where too few matched keypoints have depth
     /// (a depth camera blinded by sunlight, glass, a too-near scene), PnP
     /// RANSAC on their pixels.
-    pub(super) fn relocalise(&self, map: &Map, frame: &Frame) -> Option<Isometry3<f64>> {
+    pub(super) fn pose_at_keyframe(
+        &self,
+        map: &Map,
+        frame: &Frame,
+        features: &FeatureVector,
+        id: usize,
+    ) -> Option<Isometry3<f64>> {
         const MIN_MATCHES: usize = 20;
-        let cam_points: Vec<Option<Vector3<f64>>> = (0..frame.kps.len())
-            .map(|k| frame.depth[k].map(|d| self.camera.unproject(frame.un[k].0, frame.un[k].1, d)))
-            .collect();
-        for (_, kf) in map.live_keyframes().rev().take(40) {
-            let mut pairs = Vec::new();
-            let mut pixels = Vec::new();
-            for (k, p) in match_to_keyframe(map, kf, &frame.descs) {
-                let world = map.points[p].position;
-                match cam_points[k] {
-                    Some(c) => pairs.push((world, c)),
-                    None => {
-                        let m = frame.measure(k, &self.camera, self.params.close_depth_m);
-                        pixels.push(PnpMatch {
-                            world,
-                            u: m.u,
-                            v: m.v,
-                            info: m.info,
-                        });
-                    }
+        let kf = &map.keyframes[id];
+        let angles: Vec<f32> = frame.kps.iter().map(|k| k.angle).collect();
+        let matches = match_by_bow(map, kf, &self.vocabulary, features, &frame.descs, &angles);
+        if matches.len() < MIN_MATCHES {
+            return None;
+        }
+        let mut pairs = Vec::new();
+        let mut pixels = Vec::new();
+        for (k, p) in matches {
+            let world = map.points[p].position;
+            match frame.depth[k] {
+                Some(d) => {
+                    let c = self.camera.unproject(frame.un[k].0, frame.un[k].1, d);
+                    pairs.push((world, c));
+                }
+                None => {
+                    let m = frame.measure(k, &self.camera, self.params.close_depth_m);
+                    pixels.push(PnpMatch {
+                        world,
+                        u: m.u,
+                        v: m.v,
+                        info: m.info,
+                    });
                 }
             }
-            let pose = if pairs.len() >= MIN_MATCHES {
-                ransac_rigid(&pairs, 0.05, 200, MIN_MATCHES)
-            } else {
-                // The keypoints with depth count as pixels too.
-                pixels.extend(pairs.iter().map(|(world, c)| {
-                    let (u, v) = self.camera.project(c);
-                    PnpMatch {
-                        world: *world,
-                        u,
-                        v,
-                        info: 1.0,
-                    }
-                }));
-                pnp_ransac(&self.camera, &pixels, 300, MIN_MATCHES).map(|(pose, _)| pose)
-            };
-            if let Some(pose) = pose.filter(is_finite_pose) {
-                return Some(pose);
-            }
         }
-        None
+        let pose = if pairs.len() >= MIN_MATCHES {
+            ransac_rigid(&pairs, 0.05, 200, MIN_MATCHES)
+        } else {
+            // The keypoints with depth count as pixels too.
+            pixels.extend(pairs.iter().map(|(world, c)| {
+                let (u, v) = self.camera.project(c);
+                PnpMatch {
+                    world: *world,
+                    u,
+                    v,
+                    info: 1.0,
+                }
+            }));
+            pnp_ransac(&self.camera, &pixels, 300, MIN_MATCHES).map(|(pose, _)| pose)
+        };
+        pose.filter(is_finite_pose)
     }
 }
 

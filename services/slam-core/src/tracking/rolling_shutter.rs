@@ -121,7 +121,11 @@ mod tests {
         let mut camera = Camera::tum_fr1();
         camera.dist = [0.0; 5];
         camera.readout_s = 0.02;
-        let mut t = Tracking::new(camera, SlamParams::default());
+        let mut t = Tracking::new(
+            camera,
+            SlamParams::default(),
+            crate::place_recognition::Vocabulary::embedded(),
+        );
         // Camera from world at time t: turning 1.5 rad/s about y, sliding 0.3 m/s in x.
         let pose_at = |t: f64| {
             Isometry3::from_parts(

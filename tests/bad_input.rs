@@ -295,7 +295,7 @@ fn bad_map_files_and_flags_are_refused_before_start() {
     let garbage = dir.join("garbage.map");
     std::fs::write(
         &garbage,
-        b"DSLAMMAP\x01\x00\x00\x00 but then nothing sensible",
+        b"DSLAMMAP\x02\x00\x00\x00 but then nothing sensible",
     )
     .unwrap();
     let ply = dir.join("points.ply");

@@ -23,8 +23,8 @@
 //! - [`eval`]: ATE / RPE as evo defines them.
 //! - [`system`]: the facade.
 //!
-//! Loop closing (`loop_closing`) is not here yet; see the README for how a
-//! loop closer will share the map.
+//! - [`loop_closing`]: loop detection (bag of words, consistency), the SE(3)
+//!   loop transform, loop fusion and the essential-graph correction.
 
 pub mod camera;
 pub mod eval;
@@ -34,6 +34,7 @@ pub mod geometry;
 pub mod initialization;
 pub mod io;
 pub mod local_mapping;
+pub mod loop_closing;
 pub mod map;
 pub mod matcher;
 pub mod optimizer;

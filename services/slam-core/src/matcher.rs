@@ -21,6 +21,8 @@ const EPIPOLAR_CHI2: f64 = 3.84;
 /// Matching by bag of words: the best keypoint must beat the second best
 /// by this ratio (ORB-SLAM2's relocalisation matcher: 0.75).
 const BOW_RATIO: f64 = 0.75;
+/// Exhaustive matching's ratio test between the best and second-best point.
+const EXHAUSTIVE_RATIO: f64 = 0.8;
 
 /// A search by projection.
 #[derive(Debug, Clone, Copy)]
@@ -196,6 +198,35 @@ pub(crate) fn consistent_rotations(rotations: &[f32]) -> Vec<bool> {
         .map(|(_, b)| b)
         .collect();
     rotations.iter().map(|&r| kept.contains(&bin(r))).collect()
+}
+
+/// For each descriptor, the point of keyframe `kf` closest in descriptor
+/// space when it is below the threshold and clearly better than the
+/// second best (ratio test): (descriptor index, point id). Exhaustive: for
+/// the rare searches that must not miss (a loop candidate's geometry),
+/// where matching by bag of words finds too few.
+pub fn match_exhaustive(map: &Map, kf: &KeyFrame, descs: &[Descriptor]) -> Vec<(usize, usize)> {
+    let mut pairs = Vec::new();
+    for (k, d) in descs.iter().enumerate() {
+        let (mut b1, mut b2, mut bp) = (u32::MAX, u32::MAX, 0);
+        for &p in &kf.points {
+            if !map.points[p].is_live() {
+                continue;
+            }
+            let h = hamming(d, &map.points[p].descriptor);
+            if h < b1 {
+                b2 = b1;
+                b1 = h;
+                bp = p;
+            } else if h < b2 {
+                b2 = h;
+            }
+        }
+        if b1 <= MATCH_MAX_DISTANCE && (b1 as f64) < EXHAUSTIVE_RATIO * b2 as f64 {
+            pairs.push((k, bp));
+        }
+    }
+    pairs
 }
 
 /// Normalised image coordinates (z = 1) of a keypoint.

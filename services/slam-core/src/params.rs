@@ -40,6 +40,12 @@ pub struct SlamParams {
     /// inliers per frame by a quarter and, with the product's imperfect
     /// masks on the rendered room, triples ATE (0.0043 -> 0.0142 m; README).
     pub fuse_points: bool,
+    /// After local mapping, look for loops and correct the map when one
+    /// closes ([`crate::loop_closing`]). Off by default until it is shown
+    /// to help on a sequence with a real revisit: on the shared sequence it
+    /// accepts no loop (forward, and forward then backward), so it changes
+    /// nothing there but costs detection time (README).
+    pub loop_closing: bool,
 }
 
 impl Default for SlamParams {
@@ -57,6 +63,7 @@ impl Default for SlamParams {
             mapping_thread: true,
             triangulate: true,
             fuse_points: false,
+            loop_closing: false,
         }
     }
 }

@@ -18,7 +18,8 @@ use crate::frame::{Frame, RgbdInput};
 use crate::initialization::initialise_rgbd;
 use crate::io::map_file::{MapFile, MapFileError};
 use crate::local_mapping::checkpoint::{CheckpointPolicy, Checkpointer};
-use crate::local_mapping::LocalMapper;
+use crate::local_mapping::{map_keyframe, LocalMapper};
+use crate::loop_closing::{LoopCloser, LoopClosure};
 use crate::map::{Map, MappingCounts, MappingReport};
 use crate::params::SlamParams;
 use crate::place_recognition::Vocabulary;
@@ -113,6 +114,11 @@ pub struct System {
     pending_keyframe: Option<PendingKeyframe>,
     /// Bag-of-words vocabulary of the keyframe database (relocalisation).
     vocabulary: Arc<Vocabulary>,
+    /// Loop closing when mapping is inline (the mapping thread has its own).
+    loop_closer: Option<LoopCloser>,
+    /// The loops closed so far, and the time loop detection took.
+    loops: Vec<LoopClosure>,
+    loop_detect_ms: Vec<f64>,
 }
 
 /// What the keyframe rule made of a tracked frame.
@@ -161,7 +167,10 @@ impl System {
             mapper,
             mapping: Mapping::Idle,
             tracking: Tracking::new(camera, params, vocabulary.clone()),
+            loop_closer: params.loop_closing.then(|| LoopCloser::new(camera)),
             vocabulary,
+            loops: Vec::new(),
+            loop_detect_ms: Vec::new(),
             localize_only: false,
             checkpointer: None,
             keyframes_inserted: 0,
@@ -523,6 +532,16 @@ impl System {
     }
 
     /// Keyframes this system inserted (a loaded map's own not counted).
+    /// The loops closed so far.
+    pub fn loops(&self) -> &[LoopClosure] {
+        &self.loops
+    }
+
+    /// Loop detection time (ms) after each mapped keyframe.
+    pub fn loop_detection_ms(&self) -> &[f64] {
+        &self.loop_detect_ms
+    }
+
     /// The keyframe the last relocalisation found the camera at (by bag
     /// of words, among all keyframes of the map).
     pub fn last_relocalisation_keyframe(&self) -> Option<usize> {
@@ -556,9 +575,14 @@ impl System {
                 }
             }
         }
-        let report = self
-            .map
-            .process_keyframe(id, &self.camera, &self.params, &self.vocabulary);
+        let report = map_keyframe(
+            &mut self.map,
+            id,
+            &self.camera,
+            &self.params,
+            &self.vocabulary,
+            self.loop_closer.as_mut(),
+        );
         if let Some(to_writer) = checkpoint {
             to_writer.offer(&self.map);
         }
@@ -593,6 +617,20 @@ impl System {
             },
         };
         self.mapped += report.counts;
+        if self.params.loop_closing {
+            self.loop_detect_ms.push(report.loops.detect_ms);
+        }
+        if let Some(closed) = report.loops.closed {
+            tracing::info!(
+                "loop closed: keyframe {} with {} ({} inliers), corrected {:.3} m / {:.2} deg",
+                closed.keyframe,
+                closed.matched,
+                closed.inliers,
+                closed.correction_m,
+                closed.correction_deg
+            );
+            self.loops.push(closed);
+        }
         if report.adjusted {
             if let Some(kf) = self.map.keyframes.last() {
                 self.tracking.adopt_adjusted_pose(kf.pose_cw);

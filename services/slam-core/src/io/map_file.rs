@@ -304,6 +304,7 @@ mod tests {
                 bounds: (0.0, 640.0, 0.0, 480.0),
                 covisible: Vec::new(),
                 parent: None,
+                loops: Vec::new(),
                 culled: false,
             });
         }

@@ -48,14 +48,14 @@ impl Map {
     /// a keyframe most of whose close points (those with depth) are
     /// measured by at least three other keyframes at the same or a finer
     /// pyramid level (`scale_factor`: the pyramid's step) adds nothing to
-    /// the map and goes. The first keyframe (it defines the world) and `id`
-    /// itself stay.
+    /// the map and goes. The first keyframe (it defines the world), `id`
+    /// itself and keyframes with loop edges stay.
     pub(super) fn cull_keyframes(&mut self, id: usize, scale_factor: f64) {
         let candidates: Vec<usize> = self.keyframes[id]
             .covisible
             .iter()
             .map(|&(k, _)| k)
-            .filter(|&k| k != 0 && k != id)
+            .filter(|&k| k != 0 && k != id && self.keyframes[k].loops.is_empty())
             .collect();
         // How each keyframe measured each point (info = 1 / sigma^2 of its
         // level), built for the keyframes consulted.

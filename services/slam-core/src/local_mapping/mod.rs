@@ -26,6 +26,7 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 
 use crate::camera::Camera;
+use crate::loop_closing::LoopCloser;
 use crate::map::{Map, MappingReport};
 use crate::params::SlamParams;
 use crate::place_recognition::Vocabulary;
@@ -69,6 +70,26 @@ impl Map {
     }
 }
 
+/// Local mapping of keyframe `id`, then (with a loop closer) loop closing:
+/// the one job both the mapping thread and inline mapping run.
+pub(crate) fn map_keyframe(
+    map: &mut Map,
+    id: usize,
+    camera: &Camera,
+    params: &SlamParams,
+    vocabulary: &Vocabulary,
+    closer: Option<&mut LoopCloser>,
+) -> MappingReport {
+    let t = std::time::Instant::now();
+    let mut report = map.process_keyframe(id, camera, params, vocabulary);
+    if let Some(closer) = closer {
+        report.loops = closer.process(map, id);
+        report.adjusted |= report.loops.closed.is_some();
+    }
+    report.ms = t.elapsed().as_secs_f64() * 1e3;
+    report
+}
+
 struct Job {
     map: Map,
     keyframe: usize,
@@ -96,13 +117,21 @@ impl LocalMapper {
         let worker = std::thread::Builder::new()
             .name("local-mapping".into())
             .spawn(move || {
+                let mut closer = params.loop_closing.then(|| LoopCloser::new(camera));
                 for Job {
                     mut map,
                     keyframe,
                     checkpoint,
                 } in inbox
                 {
-                    let report = map.process_keyframe(keyframe, &camera, &params, &vocabulary);
+                    let report = map_keyframe(
+                        &mut map,
+                        keyframe,
+                        &camera,
+                        &params,
+                        &vocabulary,
+                        closer.as_mut(),
+                    );
                     if let Some(to_writer) = checkpoint {
                         to_writer.offer(&map);
                     }

@@ -43,9 +43,11 @@ pub struct Map {
 pub struct MappingReport {
     /// Wall time of the whole job (ms).
     pub ms: f64,
-    /// Local bundle adjustment moved keyframe poses.
+    /// Local bundle adjustment or a loop correction moved keyframe poses.
     pub adjusted: bool,
     pub counts: MappingCounts,
+    /// What the loop closer did after it (when loop closing is on).
+    pub loops: crate::loop_closing::LoopReport,
 }
 
 /// What local mapping added to and merged in the map.
@@ -186,6 +188,9 @@ pub struct KeyFrame {
     /// inserted (None for the first). With the covisibility graph this is
     /// what a loop closer corrects along (ORB-SLAM2's essential graph).
     pub parent: Option<usize>,
+    /// Loop edges: keyframes a loop closure joined this one to (the
+    /// essential graph keeps them for every later correction).
+    pub loops: Vec<usize>,
     /// Removed by keyframe culling: its points and edges are gone, the id
     /// stays so that other ids stay valid.
     pub culled: bool,
@@ -345,6 +350,13 @@ impl Map {
                     return Err(format!("edge {k}-{o} ({n} points) is not symmetric"));
                 }
             }
+            for &o in &kf.loops {
+                if o >= kfs || self.keyframes[o].culled || !self.keyframes[o].loops.contains(&k) {
+                    return Err(format!(
+                        "loop edge {k}-{o} is not symmetric or joins a culled keyframe"
+                    ));
+                }
+            }
             if let Some(parent) = kf.parent {
                 if parent >= k || self.keyframes[parent].culled && !kf.culled {
                     return Err(format!(
@@ -386,6 +398,25 @@ impl Map {
         let (mut neighbours, _) = self.covisibility_of(id);
         neighbours.truncate(n);
         neighbours.into_iter().map(|(k, _)| k).collect()
+    }
+
+    /// Recomputes keyframe `id`'s covisibility edges from its points (after
+    /// a loop fusion changed them); its spanning-tree parent stays.
+    pub(crate) fn reconnect(&mut self, id: usize) {
+        for (other, _) in std::mem::take(&mut self.keyframes[id].covisible) {
+            self.keyframes[other].covisible.retain(|e| e.0 != id);
+        }
+        let parent = self.keyframes[id].parent;
+        self.connect(id);
+        self.keyframes[id].parent = parent;
+    }
+
+    /// Joins keyframes `a` and `b` by a loop edge (both ways, once).
+    pub fn add_loop_edge(&mut self, a: usize, b: usize) {
+        if !self.keyframes[a].loops.contains(&b) {
+            self.keyframes[a].loops.push(b);
+            self.keyframes[b].loops.push(a);
+        }
     }
 
     /// Puts keyframe `id` into the covisibility graph and the spanning tree.
@@ -512,6 +543,7 @@ mod tests {
             bounds: (0.0, 640.0, 0.0, 480.0),
             covisible: Vec::new(),
             parent: None,
+            loops: Vec::new(),
             culled: false,
         }
     }

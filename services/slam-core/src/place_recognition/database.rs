@@ -84,22 +84,51 @@ impl KeyframeDatabase {
     }
 
     /// The keyframes a frame with vector `query` may be taken at
-    /// (ORB-SLAM2's DetectRelocalizationCandidates), best first: keyframes
-    /// sharing at least 80 % of the most words any keyframe shares with
-    /// it, scored; each one's score accumulated over its `covisible`
-    /// neighbours among them (a place is seen by a group of keyframes, a
-    /// lone look-alike is not); the best keyframe of every group within
-    /// 75 % of the best group's score.
+    /// (ORB-SLAM2's DetectRelocalizationCandidates), best first: see
+    /// [`KeyframeDatabase::candidates`], over all keyframes.
     pub fn relocalisation_candidates(
         &self,
         query: &BowVector,
+        covisible: impl Fn(usize) -> Vec<usize>,
+    ) -> Vec<usize> {
+        self.candidates(query, 0.0, |_| false, covisible)
+    }
+
+    /// The keyframes a new keyframe may close a loop with (ORB-SLAM2's
+    /// DetectLoopCandidates): as [`KeyframeDatabase::candidates`], leaving
+    /// out the keyframes `connected` to it, and scoring at least
+    /// `min_score` (the lowest score of its covisible keyframes: a loop
+    /// candidate must look at least as much alike as its neighbours do).
+    pub fn loop_candidates(
+        &self,
+        query: &BowVector,
+        min_score: f32,
+        connected: impl Fn(usize) -> bool,
+        covisible: impl Fn(usize) -> Vec<usize>,
+    ) -> Vec<usize> {
+        self.candidates(query, min_score, connected, covisible)
+    }
+
+    /// Candidates for `query`, best first: keyframes (not `excluded`)
+    /// sharing at least 80 % of the most words any of them shares with it,
+    /// scoring at least `min_score`; each one's score accumulated over its
+    /// `covisible` neighbours among them (a place is seen by a group of
+    /// keyframes, a lone look-alike is not); the best keyframe of every
+    /// group within 75 % of the best group's score.
+    pub fn candidates(
+        &self,
+        query: &BowVector,
+        min_score: f32,
+        excluded: impl Fn(usize) -> bool,
         covisible: impl Fn(usize) -> Vec<usize>,
     ) -> Vec<usize> {
         let mut common: Vec<u32> = vec![0; self.vectors.len()];
         for w in query.words() {
             if let Some(list) = self.inverted.get(w as usize) {
                 for &k in list {
-                    common[k as usize] += 1;
+                    if !excluded(k as usize) {
+                        common[k as usize] += 1;
+                    }
                 }
             }
         }
@@ -112,7 +141,7 @@ impl KeyframeDatabase {
         for (k, &n) in common.iter().enumerate() {
             if n > min_common || n == most {
                 if let Some(v) = self.vector(k) {
-                    score[k] = Some(query.score(v));
+                    score[k] = Some(query.score(v)).filter(|&s| s >= min_score);
                 }
             }
         }

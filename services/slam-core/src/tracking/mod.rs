@@ -430,6 +430,7 @@ impl Tracking {
             // Local mapping connects it.
             covisible: Vec::new(),
             parent: None,
+            loops: Vec::new(),
             culled: false,
         })
     }

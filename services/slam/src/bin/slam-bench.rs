@@ -4,7 +4,7 @@
 //! sequence.
 //!
 //! `slam-bench [DATASET] [--masks] [--skip N] [--limit N] [--threads N] [--local-ba N]
-//! [--readout S] [--inline-mapping] [--no-triangulation] [--fusion] [--extractor own|kornia]
+//! [--readout S] [--inline-mapping] [--no-triangulation] [--fusion] [--loop-closing] [--extractor own|kornia]
 //! [--verbose] [--out trajectory.txt]`
 //! With more than one extraction thread it also measures extraction alone
 //! with 1 and N threads on the same frames and prints the ratio.
@@ -75,6 +75,10 @@ struct Args {
     /// Fuse duplicate points between keyframes (off by default).
     #[arg(long)]
     fusion: bool,
+    /// Look for loops after each keyframe and correct the map (off by
+    /// default); prints loops closed and loop-detection time per keyframe.
+    #[arg(long)]
+    loop_closing: bool,
     /// Rolling-shutter readout in seconds (default: `camera.readout_s` of
     /// the config; 0 turns the correction off).
     #[arg(long)]
@@ -141,6 +145,7 @@ fn main() -> Result<()> {
     params.mapping_thread = !args.inline_mapping;
     params.triangulate = !args.no_triangulation;
     params.fuse_points = args.fusion;
+    params.loop_closing = args.loop_closing;
     if let Some(n) = args.local_ba {
         params.local_ba_keyframes = n;
     }
@@ -170,6 +175,7 @@ fn main() -> Result<()> {
         poses: Vec::new(),
     };
     let mut tracked = 0;
+    let mut relocalised = 0;
     let mut progress = Progress::new("slam", frames.len() as u64);
     for f in &frames {
         let rgb = image::open(&f.rgb)
@@ -216,6 +222,7 @@ fn main() -> Result<()> {
         if r.state.is_tracked() {
             tracked += 1;
         }
+        relocalised += (r.state == slam_core::TrackingState::Relocalised) as usize;
         trajectory.stamps.push(f.timestamp);
         trajectory.poses.push(r.pose_wc);
         progress.inc();
@@ -268,6 +275,23 @@ fn main() -> Result<()> {
         "local mapping: {} points triangulated, {} duplicates fused, {} observations added",
         mapped.triangulated, mapped.fused, mapped.observations_added
     );
+    println!("relocalisations (by bag of words): {relocalised}");
+    if args.loop_closing {
+        let mut detect = system.loop_detection_ms().to_vec();
+        detect.sort_by(f64::total_cmp);
+        println!(
+            "loop closing: {} loops closed; detection per keyframe p50 {:.2} ms, p99 {:.2} ms",
+            system.loops().len(),
+            percentile(&detect, 50.0),
+            percentile(&detect, 99.0)
+        );
+        for l in system.loops() {
+            println!(
+                "  loop: keyframe {} with {}, {} inliers, corrected {:.3} m / {:.2} deg",
+                l.keyframe, l.matched, l.inliers, l.correction_m, l.correction_deg
+            );
+        }
+    }
     println!("peak memory (VmHWM) {:.1} MiB", peak_rss_mib());
     let mut variants = vec![(format!("{threads} threads"), orb(threads, OrbBackend::Own))];
     if threads > 1 {

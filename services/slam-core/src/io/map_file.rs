@@ -1,11 +1,11 @@
 //! The map file: everything needed to go on in a map (keyframes with their
 //! poses, keypoint measurements, descriptors, depth and spare keypoints;
 //! map points with position, descriptor, observers, scale range; the
-//! covisibility graph and spanning tree; the camera; the pyramid and depth
-//! settings the map was made with).
+//! covisibility graph, spanning tree and loop edges; the keyframe database;
+//! the camera; the pyramid and depth settings the map was made with).
 //!
-//! Layout (little-endian): the magic `DSLAMMAP`, a format version (u32), the
-//! payload's length (u64) and CRC-32 (u32), then the payload: the
+//! Layout: the magic `DSLAMMAP` and the framing of [`crate::io::framed`]
+//! (version, length, CRC-32), then the payload: the
 //! [`MapFile`] in postcard (a compact, stable serde format). Another
 //! version, another camera, a truncated, corrupted or foreign file is an
 //! error naming the file and the problem; a file that decodes is checked
@@ -16,6 +16,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use super::framed::{frame, unframe, FrameProblem};
 use crate::camera::Camera;
 use crate::map::Map;
 use crate::params::SlamParams;
@@ -24,7 +25,6 @@ pub const MAGIC: &[u8; 8] = b"DSLAMMAP";
 /// Bumped whenever the payload's layout changes; older files are refused
 /// with both versions named (no silent misreading).
 pub const VERSION: u32 = 2;
-const HEADER: usize = 8 + 4 + 8 + 4;
 
 /// A temporary name beside `path`, unique per process and write (two
 /// writers of one file never share a temporary).
@@ -100,50 +100,22 @@ impl MapFile {
     pub fn encode(&self) -> Result<Vec<u8>, MapFileProblem> {
         let payload =
             postcard::to_stdvec(self).map_err(|e| MapFileProblem::Decode(e.to_string()))?;
-        let mut out = Vec::with_capacity(HEADER + payload.len());
-        out.extend_from_slice(MAGIC);
-        out.extend_from_slice(&VERSION.to_le_bytes());
-        out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
-        out.extend_from_slice(&crc32fast::hash(&payload).to_le_bytes());
-        out.extend_from_slice(&payload);
-        Ok(out)
+        Ok(frame(MAGIC, VERSION, &payload))
     }
 
     /// A map file from its bytes, checked.
     pub fn decode(bytes: &[u8]) -> Result<Self, MapFileProblem> {
-        if bytes.len() < MAGIC.len() || &bytes[..MAGIC.len()] != MAGIC {
-            return Err(MapFileProblem::NotAMapFile);
-        }
-        if bytes.len() < HEADER {
-            return Err(MapFileProblem::Truncated {
-                expected: HEADER as u64,
-                found: bytes.len() as u64,
-            });
-        }
-        let word = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap_or_default());
-        let version = word(8);
-        if version != VERSION {
-            return Err(MapFileProblem::Version {
-                found: version,
-                supported: VERSION,
-            });
-        }
-        let length = u64::from_le_bytes(bytes[12..20].try_into().unwrap_or_default());
-        let crc = word(20);
-        let payload = &bytes[HEADER..];
-        let found = payload.len() as u64;
-        if found < length {
-            return Err(MapFileProblem::Truncated {
-                expected: length,
-                found,
-            });
-        }
-        if found > length {
-            return Err(MapFileProblem::TrailingBytes(found - length));
-        }
-        if crc32fast::hash(payload) != crc {
-            return Err(MapFileProblem::Checksum);
-        }
+        let (payload, _) = unframe(bytes, MAGIC, VERSION).map_err(|p| match p {
+            FrameProblem::Foreign => MapFileProblem::NotAMapFile,
+            FrameProblem::Version { found, supported } => {
+                MapFileProblem::Version { found, supported }
+            }
+            FrameProblem::Truncated { expected, found } => {
+                MapFileProblem::Truncated { expected, found }
+            }
+            FrameProblem::TrailingBytes(n) => MapFileProblem::TrailingBytes(n),
+            FrameProblem::Checksum => MapFileProblem::Checksum,
+        })?;
         let file: MapFile =
             postcard::from_bytes(payload).map_err(|e| MapFileProblem::Decode(e.to_string()))?;
         file.map
@@ -274,6 +246,7 @@ impl MapFile {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::io::framed::HEADER;
     use crate::map::{KeyFrame, KeyFrameObservation, MapPoint};
     use crate::rng::SplitMix64;
     use nalgebra::{Isometry3, Vector3};

@@ -10,9 +10,9 @@
 //! arithmetic is integer (Hamming distances, bit majorities) except the IDF
 //! weights, which are computed in one fixed order.
 //!
-//! File layout (little-endian), as the map file's: the magic `DSLAMVOC`, a
-//! format version (u32), the payload's length (u64) and CRC-32 (u32), then
-//! the payload in postcard. A file that decodes is checked for a well-formed
+//! File layout: the magic `DSLAMVOC` and the framing of
+//! [`crate::io::framed`] (version, length, CRC-32), then the payload in
+//! postcard. A file that decodes is checked for a well-formed
 //! tree before anything walks it.
 
 use std::path::{Path, PathBuf};
@@ -21,12 +21,12 @@ use std::sync::{Arc, OnceLock};
 use serde::{Deserialize, Serialize};
 
 use crate::features::orb::{hamming, Descriptor};
+use crate::io::framed::{frame, unframe, FrameProblem};
 use crate::rng::SplitMix64;
 
 pub const MAGIC: &[u8; 8] = b"DSLAMVOC";
 /// Bumped whenever the payload's layout changes.
 pub const VERSION: u32 = 1;
-const HEADER: usize = 8 + 4 + 8 + 4;
 /// The tree level (the root is level 0) whose nodes group features for
 /// matching by bag of words: two features are compared only when they fall
 /// under the same node there (ORB-SLAM2: 4 levels up from the leaves of its
@@ -406,51 +406,22 @@ impl Vocabulary {
 
     /// The file's bytes.
     pub fn encode(&self) -> Result<Vec<u8>, VocabularyProblem> {
-        let payload = self.payload()?;
-        let mut out = Vec::with_capacity(HEADER + payload.len());
-        out.extend_from_slice(MAGIC);
-        out.extend_from_slice(&VERSION.to_le_bytes());
-        out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
-        out.extend_from_slice(&crc32fast::hash(&payload).to_le_bytes());
-        out.extend_from_slice(&payload);
-        Ok(out)
+        Ok(frame(MAGIC, VERSION, &self.payload()?))
     }
 
     /// A vocabulary from its file's bytes, checked.
     pub fn decode(bytes: &[u8]) -> Result<Self, VocabularyProblem> {
-        if bytes.len() < MAGIC.len() || &bytes[..MAGIC.len()] != MAGIC {
-            return Err(VocabularyProblem::NotAVocabulary);
-        }
-        if bytes.len() < HEADER {
-            return Err(VocabularyProblem::Truncated {
-                expected: HEADER as u64,
-                found: bytes.len() as u64,
-            });
-        }
-        let word = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap_or_default());
-        let version = word(8);
-        if version != VERSION {
-            return Err(VocabularyProblem::Version {
-                found: version,
-                supported: VERSION,
-            });
-        }
-        let length = u64::from_le_bytes(bytes[12..20].try_into().unwrap_or_default());
-        let crc = word(20);
-        let payload = &bytes[HEADER..];
-        let found = payload.len() as u64;
-        if found < length {
-            return Err(VocabularyProblem::Truncated {
-                expected: length,
-                found,
-            });
-        }
-        if found > length {
-            return Err(VocabularyProblem::TrailingBytes(found - length));
-        }
-        if crc32fast::hash(payload) != crc {
-            return Err(VocabularyProblem::Checksum);
-        }
+        let (payload, crc) = unframe(bytes, MAGIC, VERSION).map_err(|p| match p {
+            FrameProblem::Foreign => VocabularyProblem::NotAVocabulary,
+            FrameProblem::Version { found, supported } => {
+                VocabularyProblem::Version { found, supported }
+            }
+            FrameProblem::Truncated { expected, found } => {
+                VocabularyProblem::Truncated { expected, found }
+            }
+            FrameProblem::TrailingBytes(n) => VocabularyProblem::TrailingBytes(n),
+            FrameProblem::Checksum => VocabularyProblem::Checksum,
+        })?;
         let mut vocabulary: Vocabulary =
             postcard::from_bytes(payload).map_err(|e| VocabularyProblem::Decode(e.to_string()))?;
         vocabulary.check().map_err(VocabularyProblem::Malformed)?;
@@ -793,7 +764,7 @@ mod tests {
             Err(VocabularyProblem::TrailingBytes(_))
         ));
         let mut flipped = bytes.clone();
-        flipped[HEADER + 20] ^= 0x10;
+        flipped[crate::io::framed::HEADER + 20] ^= 0x10;
         assert_eq!(
             Vocabulary::decode(&flipped),
             Err(VocabularyProblem::Checksum)

@@ -30,6 +30,22 @@ pub struct RoomOptions {
     pub fps: f64,
     pub width: usize,
     pub height: usize,
+    /// How the camera moves.
+    pub path: CameraPath,
+}
+
+/// The camera's path through the room.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum CameraPath {
+    /// The default scene's: a glide sideways and forward, looking across
+    /// the room (nothing is seen twice from afar).
+    #[default]
+    Glide,
+    /// A closed circuit: round an ellipse in the middle of the room while
+    /// turning a full circle, looking out at the walls, back to the first
+    /// pose at the end (a loop for loop closing; the start leaves the local
+    /// map long before the camera returns to it).
+    Circuit,
 }
 
 impl Default for RoomOptions {
@@ -39,6 +55,7 @@ impl Default for RoomOptions {
             fps: 30.0,
             width: 640,
             height: 480,
+            path: CameraPath::Glide,
         }
     }
 }
@@ -108,6 +125,39 @@ pub fn camera_pose(t: f64, duration: f64) -> Isometry3<f64> {
     )
 }
 
+/// World from camera at time `t` of a `duration` long circuit: once round
+/// an ellipse (0.7 x 0.5 m) about the middle of the room, turning a full
+/// circle to look out at the walls, with a little bob; the last pose is the
+/// first.
+pub fn circuit_pose(t: f64, duration: f64) -> Isometry3<f64> {
+    let a = std::f64::consts::TAU * (t / duration);
+    let position = Vector3::new(
+        0.7 * a.sin(),
+        -0.05 + 0.03 * (3.0 * a).sin(),
+        1.3 - 0.5 * a.cos(),
+    );
+    // Looking out: away from the ellipse's centre, a little ahead of it.
+    let heading = a + 0.3;
+    let forward = Vector3::new(heading.sin(), 0.08, -heading.cos()).normalize();
+    let right = Vector3::y().cross(&forward).normalize();
+    let down = forward.cross(&right);
+    let look = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[right, down, forward]));
+    Isometry3::from_parts(
+        Translation3::from(position),
+        UnitQuaternion::from_rotation_matrix(&look),
+    )
+}
+
+impl CameraPath {
+    /// World from camera at `t` of a `duration` long sequence.
+    pub fn pose(self, t: f64, duration: f64) -> Isometry3<f64> {
+        match self {
+            CameraPath::Glide => camera_pose(t, duration),
+            CameraPath::Circuit => circuit_pose(t, duration),
+        }
+    }
+}
+
 /// Renders the static room into `output` (a TUM RGB-D folder with
 /// groundtruth.txt). `output` must not exist or be empty.
 pub fn render_room(
@@ -161,7 +211,7 @@ pub fn render_room(
         .collect();
 
     for_each_frame("room", options.frames, |k| {
-        let rows = row_poses(stamps[k] - t0, duration, h, camera.readout_s);
+        let rows = row_poses(options.path, stamps[k] - t0, duration, h, camera.readout_s);
         let (rgb, depth) = render_frame(&rows, &rays, w, h, camera);
         let name = format!("{:.6}.png", stamps[k]);
         rgb.save(output.join("rgb").join(&name))
@@ -185,7 +235,7 @@ pub fn render_room(
         stamps: stamps.clone(),
         poses: stamps
             .iter()
-            .map(|t| camera_pose(t - t0, duration))
+            .map(|t| options.path.pose(t - t0, duration))
             .collect(),
     };
     for (name, text) in [
@@ -231,11 +281,17 @@ pub fn default_scene(
 /// shutter (`readout_s` > 0) exposes row y `readout_s * (y - h/2) / h`
 /// seconds after the middle row, whose pose is the frame's ground truth (the
 /// instant the SLAM core reports, see `System::track_rgbd`).
-fn row_poses(t: f64, duration: f64, h: usize, readout_s: f64) -> Vec<Isometry3<f64>> {
+fn row_poses(
+    path: CameraPath,
+    t: f64,
+    duration: f64,
+    h: usize,
+    readout_s: f64,
+) -> Vec<Isometry3<f64>> {
     (0..h)
         .map(|y| {
             let offset = readout_s * (y as f64 - h as f64 / 2.0) / h as f64;
-            camera_pose(t + offset, duration)
+            path.pose(t + offset, duration)
         })
         .collect()
 }
@@ -472,11 +528,19 @@ mod tests {
     }
 
     #[test]
-    fn camera_path_stays_inside_the_room_and_moves_smoothly() {
-        let duration = 5.0;
+    fn camera_paths_stay_inside_the_room_and_move_smoothly() {
+        for (path, duration) in [(CameraPath::Glide, 5.0), (CameraPath::Circuit, 20.0)] {
+            path_is_smooth(path, duration);
+        }
+        let (start, end) = (circuit_pose(0.0, 20.0), circuit_pose(20.0, 20.0));
+        let back = start.inverse() * end;
+        assert!(back.translation.vector.norm() < 1e-9 && back.rotation.angle() < 1e-9);
+    }
+
+    fn path_is_smooth(path: CameraPath, duration: f64) {
         let mut last: Option<Isometry3<f64>> = None;
-        for k in 0..=150 {
-            let pose = camera_pose(k as f64 / 30.0, duration);
+        for k in 0..=(duration * 30.0) as usize {
+            let pose = path.pose(k as f64 / 30.0, duration);
             let p = pose.translation.vector;
             for a in 0..3 {
                 assert!(p[a] > ROOM.min[a] + 0.5 && p[a] < ROOM.max[a] - 0.5);

@@ -116,6 +116,9 @@ pub struct System {
     vocabulary: Arc<Vocabulary>,
     /// Loop closing when mapping is inline (the mapping thread has its own).
     loop_closer: Option<LoopCloser>,
+    /// Every tracked frame: timestamp, reference keyframe, camera from
+    /// reference keyframe (see [`System::trajectory`]).
+    tracked_frames: Vec<(f64, usize, Isometry3<f64>)>,
     /// The loops closed so far, and the time loop detection took.
     loops: Vec<LoopClosure>,
     loop_detect_ms: Vec<f64>,
@@ -169,6 +172,7 @@ impl System {
             tracking: Tracking::new(camera, params, vocabulary.clone()),
             loop_closer: params.loop_closing.then(|| LoopCloser::new(camera)),
             vocabulary,
+            tracked_frames: Vec::new(),
             loops: Vec::new(),
             loop_detect_ms: Vec::new(),
             localize_only: false,
@@ -317,6 +321,15 @@ impl System {
         let started = initialising && tracked.state == TrackingState::Ok;
         let decision = self.decide_keyframe(&tracked, &frame, input.timestamp, started, timing);
         let keyframe_inserted = decision == Decision::Inserted;
+        if tracked.state.is_tracked() {
+            // Relative to the newest keyframe, so that the trajectory
+            // follows the keyframes when a loop correction moves them.
+            if let Some(reference) = self.map.keyframes.len().checked_sub(1) {
+                let relative = tracked.pose_cw * self.map.keyframes[reference].pose_cw.inverse();
+                self.tracked_frames
+                    .push((input.timestamp, reference, relative));
+            }
+        }
         let mut counts = FrameCounts {
             features: frame.kps.len() as u32,
             features_masked: frame.masked as u32,
@@ -532,6 +545,27 @@ impl System {
     }
 
     /// Keyframes this system inserted (a loaded map's own not counted).
+    /// The trajectory of the tracked frames as the map stands now
+    /// (ORB-SLAM2's SaveTrajectoryTUM): each frame's pose relative to its
+    /// reference keyframe, composed with that keyframe's current pose, so
+    /// that a loop correction moves the frames before it too. Without a
+    /// correction (and with local BA off) it is the poses tracking gave.
+    pub fn trajectory(&mut self) -> crate::io::trajectory::Trajectory {
+        self.settle();
+        let mut out = crate::io::trajectory::Trajectory {
+            stamps: Vec::with_capacity(self.tracked_frames.len()),
+            poses: Vec::with_capacity(self.tracked_frames.len()),
+        };
+        for &(t, reference, relative) in &self.tracked_frames {
+            let Some(kf) = self.map.keyframes.get(reference) else {
+                continue;
+            };
+            out.stamps.push(t);
+            out.poses.push((relative * kf.pose_cw).inverse());
+        }
+        out
+    }
+
     /// The loops closed so far.
     pub fn loops(&self) -> &[LoopClosure] {
         &self.loops

@@ -309,11 +309,23 @@ impl Map {
                 fused += 1;
             }
         }
-        // 3. The loop edge, and the new covisibility it created.
+        // 3. The loop edge, and the new covisibility the fusion created:
+        //    those links are loop connections, measured with the corrected
+        //    poses (measured with the drifted ones they would pull the
+        //    correction back).
         self.add_loop_edge(id, g.matched);
+        let mut loop_links: Vec<(usize, usize)> = Vec::new();
         for &k in &current {
-            if !self.keyframes[k].culled {
-                self.reconnect(k);
+            if self.keyframes[k].culled {
+                continue;
+            }
+            let previous: HashSet<usize> =
+                self.keyframes[k].covisible.iter().map(|e| e.0).collect();
+            self.reconnect(k);
+            for &(o, _) in &self.keyframes[k].covisible {
+                if !previous.contains(&o) && !current.contains(&o) {
+                    loop_links.push((k, o));
+                }
             }
         }
         // 4. The essential graph: measured relative poses from before the
@@ -346,6 +358,9 @@ impl Map {
                 edge(k, o, pose_of(k) * pose_of(o).inverse(), 1.0);
             }
         }
+        for &(k, o) in &loop_links {
+            edge(k, o, pose_of(k) * pose_of(o).inverse(), 1.0);
+        }
         for &k in &live {
             let kf = &self.keyframes[k];
             let strong = kf
@@ -368,6 +383,21 @@ impl Map {
                 moved += 1;
             }
             self.keyframes[k].pose_cw = poses[i];
+        }
+        // Culled keyframes (frames of the trajectory still refer to them)
+        // move with their nearest live ancestor in the spanning tree.
+        for c in 0..self.keyframes.len() {
+            if !self.keyframes[c].culled {
+                continue;
+            }
+            let mut a = self.keyframes[c].parent;
+            while let Some(k) = a.filter(|&k| self.keyframes[k].culled) {
+                a = self.keyframes[k].parent;
+            }
+            if let Some(a) = a {
+                let change = before[a].inverse() * self.keyframes[a].pose_cw;
+                self.keyframes[c].pose_cw = renormalized(&(before[c] * change));
+            }
         }
         // 5. Every point moves with the keyframe it belongs to (its first
         //    observer).

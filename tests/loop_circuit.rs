@@ -8,10 +8,31 @@ use scenes::room::{render_room, CameraPath, RoomOptions};
 use slam_core::eval::{evaluate, EvalOptions};
 use slam_core::io::trajectory::Trajectory;
 use slam_core::{Camera, SlamParams, System};
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
 
 /// 15 s at 30 fps: 0.8 deg of turn per frame.
 const FRAMES: usize = 450;
+
+/// The circuit, rendered once for the tests of this file.
+fn circuit() -> &'static Path {
+    static RENDERED: OnceLock<PathBuf> = OnceLock::new();
+    RENDERED.get_or_init(|| {
+        let seq = scratch("loop-circuit").join("circuit");
+        let t = std::time::Instant::now();
+        let opts = RoomOptions {
+            frames: FRAMES,
+            path: CameraPath::Circuit,
+            ..Default::default()
+        };
+        render_room(&seq, &Camera::tum_fr1(), &opts).unwrap();
+        eprintln!(
+            "rendered {FRAMES} frames in {:.1} s",
+            t.elapsed().as_secs_f64()
+        );
+        seq
+    })
+}
 
 /// Tracks the circuit with `features` ORB features per frame (fewer:
 /// more drift): ATE of the final trajectory (frames follow their keyframes
@@ -54,26 +75,14 @@ fn track(
 /// first ones) and corrected. With 1000 features there is little drift and
 /// the correction does no harm (ATE within 10 %); with 250 features the
 /// circuit drifts and the corrected trajectory is better. The issue asks
-/// for <= 0.7x there: measured 0.75x (0.0130 -> 0.0098 m), not met; the
+/// for <= 0.7x there: measured 0.76x (0.0130 -> 0.0098 m), not met; the
 /// assertion guards what is reached.
 #[test]
 fn a_closed_circuit_is_detected_and_corrected() {
-    let dir = scratch("loop-circuit");
-    let seq = dir.join("circuit");
-    let t = std::time::Instant::now();
-    let opts = RoomOptions {
-        frames: FRAMES,
-        path: CameraPath::Circuit,
-        ..Default::default()
-    };
-    render_room(&seq, &Camera::tum_fr1(), &opts).unwrap();
-    eprintln!(
-        "rendered {FRAMES} frames in {:.1} s",
-        t.elapsed().as_secs_f64()
-    );
+    let seq = circuit();
     for (features, bound) in [(1000, 1.1), (250, 0.85)] {
-        let (off, none) = track(&seq, false, features);
-        let (on, loops) = track(&seq, true, features);
+        let (off, none) = track(seq, false, features);
+        let (on, loops) = track(seq, true, features);
         eprintln!(
             "{features} features: ATE {off:.4} -> {on:.4} m ({:.2}x)",
             on / off
@@ -89,5 +98,34 @@ fn a_closed_circuit_is_detected_and_corrected() {
             "{features} features: {on:.4} vs {off:.4} m"
         );
     }
+}
+
+/// The whole pipeline with `services.slam.loop_closing = true` (mask
+/// workers off: nothing moves in the room): the loop closure lands in the
+/// run folder's `loops.csv` and report.md counts it.
+#[test]
+fn the_pipeline_records_the_loop_in_loops_csv() {
+    let seq = circuit();
+    let dir = scratch("loop-pipeline");
+    let config = write_config(
+        &dir,
+        &format!("{NO_MASK_MODELS}[services.slam]\nloop_closing = true\n"),
+    );
+    let r = run(
+        seq,
+        &config,
+        &dir.join("runs"),
+        &format!("loops{}", std::process::id()),
+        &["--camera", "tum-fr1"],
+    );
+    assert!(r.success(), "{}", r.stderr());
+    let csv = std::fs::read_to_string(r.run_dir.join("loops.csv")).unwrap();
+    eprintln!("{csv}");
+    let rows: Vec<&str> = csv.lines().skip(1).collect();
+    assert_eq!(rows.len(), 1, "{csv}");
+    let matched: usize = rows[0].split(',').nth(2).unwrap().parse().unwrap();
+    assert!(matched <= 2, "{csv}");
+    let report = std::fs::read_to_string(r.run_dir.join("report.md")).unwrap();
+    assert!(report.contains("`loops.csv`: 1 loop closures"), "{report}");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -404,6 +404,9 @@ pub struct ServiceConfig {
     /// SLAM: ORB-SLAM2's localization mode: track against the loaded map,
     /// add no keyframe or point (needs `load_map`).
     pub localize_only: bool,
+    /// SLAM: look for loops after each keyframe and correct the map when
+    /// one closes (`loops.csv` in the run folder; off by default).
+    pub loop_closing: bool,
 }
 
 /// A configuration error that names the file, the key path and the problem.

@@ -566,6 +566,16 @@ impl System {
         out
     }
 
+    /// The timestamp of the frame that became keyframe `id` (None for a
+    /// keyframe of a loaded map).
+    pub fn keyframe_timestamp(&self, id: usize) -> Option<f64> {
+        let i = self.tracked_frames.partition_point(|f| f.1 < id);
+        self.tracked_frames
+            .get(i)
+            .filter(|f| f.1 == id)
+            .map(|f| f.0)
+    }
+
     /// The loops closed so far.
     pub fn loops(&self) -> &[LoopClosure] {
         &self.loops

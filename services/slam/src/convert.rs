@@ -22,6 +22,7 @@ pub fn params(config: &PipelineConfig) -> SlamParams {
     if let Some(t) = config.services.slam.threads {
         params.orb.threads = t.max(1);
     }
+    params.loop_closing = config.services.slam.loop_closing;
     params
 }
 

@@ -45,18 +45,23 @@ struct Args {
     /// restart resumes its motion model from them.
     #[arg(long)]
     resume_poses: Option<std::path::PathBuf>,
+    /// Append each loop closure here as it happens (CSV; the header is
+    /// written when the file is new): a killed process loses none.
+    #[arg(long)]
+    loops_out: Option<std::path::PathBuf>,
 }
 
 fn main() -> ExitCode {
     let args = Args::parse();
     let map_out = args.map_out.clone();
+    let loops_out = args.loops_out.clone();
     let files = MapFiles {
         checkpoint: args.checkpoint.clone(),
         resume_poses: args.resume_poses.clone(),
         ..MapFiles::default()
     };
     run_service(ServiceKind::Slam, &args.service, move |ctx| {
-        run(ctx, map_out.as_deref(), files)
+        run(ctx, map_out.as_deref(), loops_out.as_deref(), files)
     })
 }
 
@@ -115,7 +120,12 @@ struct State {
 /// keyframes are made from propagated masks again.
 const SEGMENTER_PATIENCE: u64 = 60;
 
-fn run(ctx: ServiceContext, map_out: Option<&std::path::Path>, files: MapFiles) -> Result<()> {
+fn run(
+    ctx: ServiceContext,
+    map_out: Option<&std::path::Path>,
+    loops_out: Option<&std::path::Path>,
+    files: MapFiles,
+) -> Result<()> {
     let mut tracker = tracker_from_config(&ctx, files)?;
     let frames = ctx.transport.slice_receiver::<FrameHeader>(Topic::Frames)?;
     let masks = ctx.transport.slice_receiver::<MasksHeader>(Topic::Masks)?;
@@ -144,6 +154,7 @@ fn run(ctx: ServiceContext, map_out: Option<&std::path::Path>, files: MapFiles) 
         if wait(&ws, Duration::from_secs(1))? == Wake::Terminate {
             // (`finish` inserts a keyframe still waiting for its masks.)
             tracker.finish().map_err(anyhow::Error::msg)?;
+            record_loops(&mut *tracker, loops_out)?;
             if let Some(path) = map_out {
                 let points = tracker.map_points();
                 write_ply(path, &points).map_err(|e| {
@@ -224,6 +235,7 @@ fn run(ctx: ServiceContext, map_out: Option<&std::path::Path>, files: MapFiles) 
         while let Some(track) = track_next_ready(&mut st, &mut *tracker, realtime)? {
             tracks.send(track)?;
             poses.send(Pose::of(&track))?;
+            record_loops(&mut *tracker, loops_out)?;
         }
         if let (Some(waiting), Some(last)) = (st.pending_keyframe, st.last) {
             if last.seq > waiting + SEGMENTER_PATIENCE {
@@ -274,6 +286,30 @@ fn track_next_ready(
     st.masks.retain(|m| m.user_header().seq > seq);
     st.routes.retain(|&s, _| s > seq);
     Ok(Some(track))
+}
+
+/// Appends the loops the tracker closed since the last call to `path`
+/// (`loops.csv`), and logs them.
+fn record_loops(tracker: &mut dyn Tracker, path: Option<&std::path::Path>) -> Result<()> {
+    let loops = tracker.take_loops();
+    if loops.is_empty() {
+        return Ok(());
+    }
+    for (t, l) in &loops {
+        tracing::info!(
+            timestamp = t,
+            keyframe = l.keyframe,
+            matched = l.matched,
+            "loop closed, corrected {:.3} m / {:.2} deg",
+            l.correction_m,
+            l.correction_deg
+        );
+    }
+    if let Some(path) = path {
+        slam::loops_csv::append(path, &loops)
+            .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
+    }
+    Ok(())
 }
 
 fn from_segmenter(m: &MasksSample) -> bool {

@@ -9,6 +9,7 @@ use shared_types::TrackState;
 use slam_core::io::ply::ColouredPoint;
 use slam_core::io::trajectory::Trajectory;
 use slam_core::local_mapping::checkpoint::CheckpointPolicy;
+use slam_core::loop_closing::LoopClosure;
 use slam_core::{MapFile, MapFileError, System};
 
 use crate::convert;
@@ -27,6 +28,8 @@ pub struct RgbdTracker {
     /// does not change), and the map file asked for.
     checkpoint: Option<PathBuf>,
     save: Option<PathBuf>,
+    /// Loops already handed out by `take_loops`.
+    loops_reported: usize,
 }
 
 /// Where the map comes from and goes to.
@@ -101,6 +104,7 @@ impl RgbdTracker {
             painted: Vec::new(),
             checkpoint,
             save: files.save.clone(),
+            loops_reported: 0,
         })
     }
 }
@@ -172,6 +176,21 @@ impl Tracker for RgbdTracker {
             tracing::info!("map written to {}", path.display());
         }
         Ok(())
+    }
+
+    fn take_loops(&mut self) -> Vec<(f64, LoopClosure)> {
+        let new: Vec<(f64, LoopClosure)> = self.system.loops()[self.loops_reported..]
+            .iter()
+            .map(|l| {
+                let t = self
+                    .system
+                    .keyframe_timestamp(l.keyframe)
+                    .unwrap_or(f64::NAN);
+                (t, *l)
+            })
+            .collect();
+        self.loops_reported += new.len();
+        new
     }
 
     fn map_points(&mut self) -> Vec<ColouredPoint> {

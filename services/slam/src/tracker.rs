@@ -51,6 +51,11 @@ pub trait Tracker {
     fn complete_keyframe(&mut self, _masks: Option<&MasksView>) -> bool {
         false
     }
+    /// Loops closed since the last call: (timestamp of the keyframe's
+    /// frame, the closure).
+    fn take_loops(&mut self) -> Vec<(f64, slam_core::loop_closing::LoopClosure)> {
+        Vec::new()
+    }
     /// The map's points (empty for trackers without a map).
     fn map_points(&mut self) -> Vec<slam_core::io::ply::ColouredPoint> {
         Vec::new()

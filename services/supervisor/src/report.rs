@@ -414,6 +414,18 @@ pub fn write(
             "- no `map.ply` (the SLAM backend keeps no map, or it was not stopped cleanly)"
         )?,
     }
+    let loops = run_dir.join(crate::run::LOOPS_FILE);
+    match slam::loops_csv::count_rows(&loops) {
+        Ok(0) if !loops.exists() => writeln!(
+            md,
+            "- no `loops.csv`: no loop closed (loop closing is `services.slam.loop_closing`, off by default)"
+        )?,
+        Ok(n) => writeln!(
+            md,
+            "- `loops.csv`: {n} loop closures (timestamp, keyframe, matched keyframe, inliers, correction in m and deg)"
+        )?,
+        Err(e) => writeln!(md, "- `loops.csv` cannot be read: {e}")?,
+    }
     writeln!(
         md,
         "- `latency_summary.json`, `trace.json`, `status.json`, `config.toml`"

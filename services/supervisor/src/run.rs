@@ -34,6 +34,8 @@ use crate::run_dir::{self, ChildStatus, Status};
 
 /// The SLAM service writes its map here (in the run folder) when stopped.
 pub const MAP_FILE: &str = "map.ply";
+/// Loop closures, one row each (written by the SLAM service as they happen).
+pub const LOOPS_FILE: &str = "loops.csv";
 
 /// How a run ended.
 #[derive(Debug, Clone)]
@@ -73,6 +75,8 @@ struct Service {
     restarts: u64,
     /// Last error line the service printed (shown when it is given up on).
     last_error: Arc<Mutex<String>>,
+    /// The thread forwarding the running process's stderr.
+    stderr_forwarder: Option<std::thread::JoinHandle<()>>,
 }
 
 impl Service {
@@ -153,9 +157,13 @@ fn clean_previous(run_dir: &Path, names: &RunNames) -> Result<()> {
     Ok(())
 }
 
-/// Forwards a child's stderr to ours and remembers its last error line.
-fn forward_stderr(child: &mut Child, last_error: Arc<Mutex<String>>) {
-    if let Some(stderr) = child.stderr.take() {
+/// Forwards a child's stderr to ours and remembers its last error line;
+/// the thread ends when the child's stderr closes.
+fn forward_stderr(
+    child: &mut Child,
+    last_error: Arc<Mutex<String>>,
+) -> Option<std::thread::JoinHandle<()>> {
+    child.stderr.take().map(|stderr| {
         std::thread::spawn(move || {
             for line in BufReader::new(stderr).lines().map_while(Result::ok) {
                 eprintln!("{line}");
@@ -165,8 +173,22 @@ fn forward_stderr(child: &mut Child, last_error: Arc<Mutex<String>>) {
                     }
                 }
             }
-        });
+        })
+    })
+}
+
+/// The last error line of a service that has exited: its stderr forwarder
+/// is given up to half a second to read what the process wrote last (the
+/// exit can be seen before the pipe is drained; a grandchild holding the
+/// pipe open must not stall the supervisor).
+fn last_error_of(svc: &mut Service) -> String {
+    if let Some(forwarder) = svc.stderr_forwarder.take() {
+        let deadline = Instant::now() + Duration::from_millis(500);
+        while !forwarder.is_finished() && Instant::now() < deadline {
+            std::thread::sleep(Duration::from_millis(5));
+        }
     }
+    svc.last_error.lock().map(|s| s.clone()).unwrap_or_default()
 }
 
 struct Supervisor {
@@ -211,6 +233,8 @@ impl Supervisor {
         if kind == ServiceKind::Slam {
             args.push("--map-out".into());
             args.push(run_dir.join(MAP_FILE).to_string_lossy().into_owned());
+            args.push("--loops-out".into());
+            args.push(run_dir.join(LOOPS_FILE).to_string_lossy().into_owned());
             args.push("--checkpoint".into());
             let checkpoint = run_dir.join(crate::map_files::CHECKPOINT_FILE);
             args.push(checkpoint.to_string_lossy().into_owned());
@@ -230,7 +254,7 @@ impl Supervisor {
         let program = svc.program.clone();
         match spawn(&program, &args) {
             Ok(mut child) => {
-                forward_stderr(&mut child, svc.last_error.clone());
+                svc.stderr_forwarder = forward_stderr(&mut child, svc.last_error.clone());
                 tracing::info!(pid = child.id(), "started {}", kind.as_str());
                 svc.child = Some(child);
                 svc.state = SvcState::Starting {
@@ -555,7 +579,7 @@ impl Supervisor {
             let how = describe_exit(status);
             let kind = svc.kind;
             if is_input_error(status) {
-                let msg = svc.last_error.lock().map(|s| s.clone()).unwrap_or_default();
+                let msg = last_error_of(svc);
                 svc.state = SvcState::Failed {
                     reason: format!("{} stopped on bad input ({how}): {msg}", kind.as_str()),
                 };
@@ -585,7 +609,7 @@ impl Supervisor {
                     )?;
                 }
                 RestartDecision::GiveUp { deaths_in_a_row } => {
-                    let msg = svc.last_error.lock().map(|s| s.clone()).unwrap_or_default();
+                    let msg = last_error_of(svc);
                     let reason = format!(
                         "{} died {deaths_in_a_row} times in a row, each within {} s of starting (last: {how}); giving up on it. Its last error: {msg}",
                         kind.as_str(),
@@ -770,6 +794,7 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
             started: Instant::now(),
             restarts: 0,
             last_error: Arc::new(Mutex::new(String::new())),
+            stderr_forwarder: None,
         });
     }
     let mut sup = Supervisor {

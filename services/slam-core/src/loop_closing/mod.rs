@@ -10,7 +10,8 @@
 //!    between the keyframe's points and the candidate's (matching by bag of
 //!    words found too few with our small vocabulary), a rigid transform by RANSAC on the
 //!    matched points' world positions (the drifted one against the old
-//!    one), then verification by projection: the candidate's neighbourhood
+//!    one) whose inliers must spread across the image (a person seen at two
+//!    places gives a consistent transform too), then verification by projection: the candidate's neighbourhood
 //!    projected into the keyframe with the corrected pose must match enough
 //!    of its keypoints.
 //! 3. **Correction** ([`Map::correct_loop`]): the keyframe's neighbourhood
@@ -201,10 +202,13 @@ impl LoopCloser {
         let old = &map.keyframes[matched];
         let descs: Vec<_> = kf.measurements.iter().map(|m| m.descriptor).collect();
         let matches = match_exhaustive(map, old, &descs);
+        let matches: Vec<(usize, usize)> = matches
+            .into_iter()
+            .filter(|&(i, p_old)| kf.points[i] != p_old)
+            .collect();
         let pairs: Vec<(usize, usize)> = matches
             .iter()
             .map(|&(i, p_old)| (kf.points[i], p_old))
-            .filter(|&(p_new, p_old)| p_new != p_old)
             .collect();
         if pairs.len() < MIN_BOW_MATCHES {
             return None;
@@ -225,6 +229,19 @@ impl LoopCloser {
             |t, i| ((t * Point3::from(positions[i].0)).coords - positions[i].1).norm() < INLIER_M,
         )?;
         if inliers.len() < MIN_INLIERS {
+            return None;
+        }
+        // A place is seen across the image; a consistent set of matches in
+        // one region is an object that moved (a person seen twice) or one
+        // look-alike surface.
+        let pixels: Vec<(f64, f64)> = inliers
+            .iter()
+            .map(|&j| {
+                let m = &kf.measurements[matches[j].0];
+                (m.u, m.v)
+            })
+            .collect();
+        if !spread_across(&pixels, kf.bounds) {
             return None;
         }
         let correction = fit_rigid(&inliers.iter().map(|&i| positions[i]).collect::<Vec<_>>())?;
@@ -286,6 +303,23 @@ impl LoopCloser {
         }
         confirmed
     }
+}
+
+/// Inlier pixels span at least this share of the image's width and of its
+/// height (between their 10th and 90th percentiles).
+const MIN_SPREAD: f64 = 0.35;
+
+/// The pixels cover the image (`bounds`) widely enough in both directions.
+fn spread_across(pixels: &[(f64, f64)], bounds: crate::camera::Bounds) -> bool {
+    let (x0, x1, y0, y1) = bounds;
+    let extent = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        let at = |q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
+        at(0.9) - at(0.1)
+    };
+    !pixels.is_empty()
+        && extent(pixels.iter().map(|p| p.0).collect()) >= MIN_SPREAD * (x1 - x0)
+        && extent(pixels.iter().map(|p| p.1).collect()) >= MIN_SPREAD * (y1 - y0)
 }
 
 impl Map {
@@ -454,6 +488,19 @@ mod tests {
     /// (from up to 0.71 m; measured 0.05 m: the essential graph spreads the
     /// heading error evenly, not exactly where it arose), the first
     /// keyframe (the matched one) unmoved.
+    #[test]
+    fn inliers_in_one_region_are_not_a_place() {
+        let bounds = (0.0, 640.0, 0.0, 480.0);
+        let grid: Vec<(f64, f64)> = (0..100)
+            .map(|i| (32.0 + 64.0 * (i % 10) as f64, 24.0 + 48.0 * (i / 10) as f64))
+            .collect();
+        assert!(spread_across(&grid, bounds));
+        // A person: a tall, narrow region.
+        let person: Vec<(f64, f64)> = grid.iter().map(|&(u, v)| (300.0 + u / 8.0, v)).collect();
+        assert!(!spread_across(&person, bounds));
+        assert!(!spread_across(&[], bounds));
+    }
+
     #[test]
     fn a_loop_correction_removes_the_drift_of_a_circuit() {
         let n = 24;

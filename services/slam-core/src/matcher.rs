@@ -101,8 +101,8 @@ pub fn matched_pairs(matched: &[Option<usize>]) -> Vec<(usize, usize)> {
 
 /// Matches of a frame's keypoints to the points of keyframe `kf` by bag of
 /// words (ORB-SLAM2's SearchByBoW): only descriptors under the same
-/// vocabulary node at the feature level are compared (`frame` is the
-/// frame's feature vector over `descs`); a keyframe measurement's best
+/// vocabulary node at the feature level are compared (`features` is the
+/// frame's feature vector over its descriptors); a keyframe measurement's best
 /// keypoint must be below the threshold and clearly better than the second
 /// best; a keypoint keeps its closest point; then only matches whose
 /// change of keypoint orientation agrees with the most common changes stay
@@ -111,15 +111,15 @@ pub fn match_by_bow(
     map: &Map,
     kf: &KeyFrame,
     vocabulary: &Vocabulary,
-    frame: &FeatureVector,
-    descs: &[Descriptor],
-    angles: &[f32],
+    features: &FeatureVector,
+    frame: &Frame,
 ) -> Vec<(usize, usize)> {
+    let descs = &frame.descs;
     let kf_descs: Vec<Descriptor> = kf.measurements.iter().map(|m| m.descriptor).collect();
     let kf_features = vocabulary.features(&kf_descs);
     // (point, distance, measurement index) per keypoint.
     let mut best: Vec<Option<(usize, u32, usize)>> = vec![None; descs.len()];
-    let (a, b) = (&kf_features.0, &frame.0);
+    let (a, b) = (&kf_features.0, &features.0);
     let (mut i, mut j) = (0, 0);
     while i < a.len() && j < b.len() {
         match a[i].0.cmp(&b[j].0) {
@@ -162,7 +162,7 @@ pub fn match_by_bow(
         .collect();
     let rotations: Vec<f32> = matches
         .iter()
-        .map(|&(k, _, i)| angles[k] - kf.measurements[i].angle)
+        .map(|&(k, _, i)| frame.kps[k].angle - kf.measurements[i].angle)
         .collect();
     let keep = consistent_rotations(&rotations);
     matches

@@ -289,27 +289,14 @@ fn track_next_ready(
 }
 
 /// Appends the loops the tracker closed since the last call to `path`
-/// (`loops.csv`), and logs them.
+/// (`loops.csv`; the SLAM core logs each one as it closes).
 fn record_loops(tracker: &mut dyn Tracker, path: Option<&std::path::Path>) -> Result<()> {
     let loops = tracker.take_loops();
-    if loops.is_empty() {
-        return Ok(());
+    match path {
+        Some(path) if !loops.is_empty() => slam::loops_csv::append(path, &loops)
+            .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display())),
+        _ => Ok(()),
     }
-    for (t, l) in &loops {
-        tracing::info!(
-            timestamp = t,
-            keyframe = l.keyframe,
-            matched = l.matched,
-            "loop closed, corrected {:.3} m / {:.2} deg",
-            l.correction_m,
-            l.correction_deg
-        );
-    }
-    if let Some(path) = path {
-        slam::loops_csv::append(path, &loops)
-            .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
-    }
-    Ok(())
 }
 
 fn from_segmenter(m: &MasksSample) -> bool {

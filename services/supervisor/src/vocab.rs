@@ -6,7 +6,8 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use sha2::{Digest, Sha256};
+use camera_reader::source::{image_folder, SourceError};
+use pipeline::provision::sha256_of;
 use slam_core::features::orb::{GrayU8, OrbExtractor};
 use slam_core::place_recognition::vocabulary::{TrainOptions, Vocabulary};
 use slam_core::SlamParams;
@@ -28,16 +29,13 @@ pub fn image_files(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
     let mut files = Vec::new();
     for input in inputs {
         if input.is_dir() {
-            let mut found: Vec<PathBuf> = std::fs::read_dir(input)
-                .with_context(|| format!("cannot list image folder {}", input.display()))?
-                .filter_map(|e| e.ok().map(|e| e.path()))
-                .filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")))
-                .collect();
-            if found.is_empty() {
-                bail!("image folder {} has no .png files", input.display());
-            }
-            found.sort();
-            files.extend(found);
+            let found = image_folder(input, 1.0).map_err(|e| match e {
+                SourceError::Empty { .. } => {
+                    anyhow::anyhow!("image folder {} has no .png files", input.display())
+                }
+                other => anyhow::anyhow!("{other}"),
+            })?;
+            files.extend(found.into_iter().map(|f| f.rgb));
         } else if input.is_file() {
             files.push(input.clone());
         } else {
@@ -48,14 +46,6 @@ pub fn image_files(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
         bail!("no images given: name PNG files or folders of them");
     }
     Ok(files)
-}
-
-/// Hex SHA-256 of `bytes`.
-pub fn sha256_hex(bytes: &[u8]) -> String {
-    Sha256::digest(bytes)
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect()
 }
 
 /// Trains a vocabulary on the ORB features (the SLAM's own extractor and
@@ -113,33 +103,30 @@ pub fn train(inputs: &[PathBuf], out: &Path, opts: TrainOptions) -> Result<Train
     })
     .map_err(|e| anyhow::anyhow!("{e}"))?;
     vocabulary.write(out)?;
-    let bytes =
-        std::fs::read(out).with_context(|| format!("cannot read back {}", out.display()))?;
     Ok(Trained {
         images: files.len(),
         features,
         words: vocabulary.words(),
-        sha256: sha256_hex(&bytes),
+        sha256: sha256_of(out)?,
         seconds: t.elapsed().as_secs_f64(),
     })
 }
 
 /// A description of the vocabulary file at `path`, and how long it took
-/// to load.
+/// to read and check.
 pub fn info(path: &Path) -> Result<String> {
-    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
     let t = std::time::Instant::now();
-    let v = Vocabulary::decode(&bytes)
-        .map_err(|e| anyhow::anyhow!("vocabulary {}: {e}", path.display()))?;
+    let v = Vocabulary::read(path)?;
     let ms = t.elapsed().as_secs_f64() * 1e3;
+    let bytes = std::fs::metadata(path)?.len();
     Ok(format!(
         "{}: {} words (k {}, L {}), {} bytes, sha256 {}, loaded in {ms:.1} ms\ntrained on: {}",
         path.display(),
         v.words(),
         v.branching(),
         v.levels(),
-        bytes.len(),
-        sha256_hex(&bytes),
+        bytes,
+        sha256_of(path)?,
         v.description
     ))
 }

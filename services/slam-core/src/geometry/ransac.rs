@@ -1,9 +1,36 @@
 //! The one RANSAC driver. Relocalisation's 3D-3D fit and PnP differ only
 //! in how a model is fitted to a sample and what an inlier is; sampling,
 //! scoring and the choice of the best hypothesis live here. Seeded, so a
-//! run is repeatable.
+//! run is repeatable. The rigid 3D-3D search (relocalisation on depth, the
+//! loop transform) is [`rigid_ransac`].
 
+use nalgebra::{Isometry3, Point3, Vector3};
+
+use super::alignment::fit_rigid;
 use crate::rng::SplitMix64;
+
+/// The rigid transform mapping the first point of each pair onto the
+/// second, by RANSAC over 3-point fits (inliers within `threshold`),
+/// refitted on its inliers; with the inliers' indices.
+pub(crate) fn rigid_ransac(
+    pairs: &[(Vector3<f64>, Vector3<f64>)],
+    threshold: f64,
+    iterations: usize,
+    seed: u64,
+) -> Option<(Isometry3<f64>, Vec<usize>)> {
+    let search = Ransac {
+        sample: 3,
+        iterations,
+        seed,
+    };
+    let (_, inliers) = search.run(
+        pairs.len(),
+        |s| fit_rigid(&s.iter().map(|&i| pairs[i]).collect::<Vec<_>>()),
+        |t, i| ((t * Point3::from(pairs[i].0)).coords - pairs[i].1).norm() < threshold,
+    )?;
+    let refit = fit_rigid(&inliers.iter().map(|&i| pairs[i]).collect::<Vec<_>>())?;
+    Some((refit, inliers))
+}
 
 /// What one RANSAC search is asked for.
 #[derive(Debug, Clone, Copy)]

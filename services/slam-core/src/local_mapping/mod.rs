@@ -50,7 +50,7 @@ impl Map {
     ) -> MappingReport {
         let t = std::time::Instant::now();
         let mut report = MappingReport::default();
-        self.index_keyframe(id, vocabulary);
+        self.reindex(vocabulary);
         self.cull_points(id);
         let scale_factor = params.orb.scale_factor as f64;
         if params.triangulate {

@@ -33,8 +33,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::camera::Camera;
 use crate::features::orb::{hamming, MATCH_MAX_DISTANCE};
-use crate::geometry::alignment::fit_rigid;
-use crate::geometry::ransac::Ransac;
+use crate::geometry::ransac::rigid_ransac;
 use crate::map::Map;
 use crate::matcher::match_exhaustive;
 use crate::optimizer::pose::renormalized;
@@ -45,8 +44,8 @@ const CONSISTENCY: u32 = 3;
 /// No loop is looked for before the map has this many keyframes, nor within
 /// this many keyframes of the last loop (ORB-SLAM2: 10).
 const MIN_KEYFRAMES: usize = 10;
-/// Bag-of-words matches a candidate needs before RANSAC (ORB-SLAM2: 20).
-const MIN_BOW_MATCHES: usize = 20;
+/// Point matches a candidate needs before RANSAC (ORB-SLAM2: 20).
+const MIN_MATCHES: usize = 20;
 /// RANSAC inliers of the loop transform (ORB-SLAM2: 20), and matches by
 /// projection that must confirm it (ORB-SLAM2: 40).
 const MIN_INLIERS: usize = 20;
@@ -162,7 +161,7 @@ impl LoopCloser {
             self.groups.clear();
             return Vec::new();
         }
-        let candidates = map.database.loop_candidates(
+        let candidates = map.database.candidates(
             query,
             min_score,
             |k| connected.contains(&k),
@@ -201,33 +200,22 @@ impl LoopCloser {
         let kf = &map.keyframes[id];
         let old = &map.keyframes[matched];
         let descs: Vec<_> = kf.measurements.iter().map(|m| m.descriptor).collect();
-        let matches = match_exhaustive(map, old, &descs);
-        let matches: Vec<(usize, usize)> = matches
+        // (keyframe measurement, its point, the candidate's point); the
+        // points they already share say nothing about a loop.
+        let matches: Vec<(usize, usize, usize)> = match_exhaustive(map, old, &descs)
             .into_iter()
-            .filter(|&(i, p_old)| kf.points[i] != p_old)
+            .map(|(i, p_old)| (i, kf.points[i], p_old))
+            .filter(|&(_, p_new, p_old)| p_new != p_old)
             .collect();
-        let pairs: Vec<(usize, usize)> = matches
-            .iter()
-            .map(|&(i, p_old)| (kf.points[i], p_old))
-            .collect();
-        if pairs.len() < MIN_BOW_MATCHES {
+        if matches.len() < MIN_MATCHES {
             return None;
         }
         // World-from-world: old positions from the drifted ones.
-        let positions: Vec<(Vector3<f64>, Vector3<f64>)> = pairs
+        let positions: Vec<(Vector3<f64>, Vector3<f64>)> = matches
             .iter()
-            .map(|&(n, o)| (map.points[n].position, map.points[o].position))
+            .map(|&(_, n, o)| (map.points[n].position, map.points[o].position))
             .collect();
-        let search = Ransac {
-            sample: 3,
-            iterations: 300,
-            seed: 0x100B,
-        };
-        let (_, inliers) = search.run(
-            positions.len(),
-            |s| fit_rigid(&s.iter().map(|&i| positions[i]).collect::<Vec<_>>()),
-            |t, i| ((t * Point3::from(positions[i].0)).coords - positions[i].1).norm() < INLIER_M,
-        )?;
+        let (correction, inliers) = rigid_ransac(&positions, INLIER_M, 300, 0x100B)?;
         if inliers.len() < MIN_INLIERS {
             return None;
         }
@@ -244,7 +232,6 @@ impl LoopCloser {
         if !spread_across(&pixels, kf.bounds) {
             return None;
         }
-        let correction = fit_rigid(&inliers.iter().map(|&i| positions[i]).collect::<Vec<_>>())?;
         // The camera sees the old world through the correction.
         let corrected_cw = renormalized(&(kf.pose_cw * correction.inverse()));
         let confirmed = self.confirm(map, id, matched, &corrected_cw);
@@ -254,7 +241,10 @@ impl LoopCloser {
         Some(LoopGeometry {
             matched,
             corrected_cw,
-            point_pairs: inliers.iter().map(|&i| pairs[i]).collect(),
+            point_pairs: inliers
+                .iter()
+                .map(|&i| (matches[i].1, matches[i].2))
+                .collect(),
             inliers: inliers.len(),
             confirmed,
         })
@@ -366,13 +356,11 @@ impl Map {
         //    correction, loop edges from the corrected ones.
         let live: Vec<usize> = self.live_keyframes().map(|(k, _)| k).collect();
         let slot: HashMap<usize, usize> = live.iter().enumerate().map(|(i, &k)| (k, i)).collect();
-        let mut poses: Vec<Isometry3<f64>> = live
-            .iter()
-            .map(|k| corrected.get(k).copied().unwrap_or(before[*k]))
-            .collect();
+        let pose_of = |k: usize| corrected.get(&k).copied().unwrap_or(before[k]);
+        let mut poses: Vec<Isometry3<f64>> = live.iter().map(|&k| pose_of(k)).collect();
         let mut edges = Vec::new();
         let mut seen: HashSet<(usize, usize)> = HashSet::new();
-        let mut edge = |a: usize, b: usize, relative: Isometry3<f64>, weight: f64| {
+        let mut edge = |a: usize, b: usize, relative: Isometry3<f64>| {
             let key = (a.min(b), a.max(b));
             if a != b && seen.insert(key) {
                 if let (Some(&sa), Some(&sb)) = (slot.get(&a), slot.get(&b)) {
@@ -380,20 +368,19 @@ impl Map {
                         from: sa,
                         to: sb,
                         relative,
-                        weight,
+                        weight: 1.0,
                     });
                 }
             }
         };
-        let pose_of = |k: usize| corrected.get(&k).copied().unwrap_or(before[k]);
         for &k in &live {
             let kf = &self.keyframes[k];
             for &o in &kf.loops {
-                edge(k, o, pose_of(k) * pose_of(o).inverse(), 1.0);
+                edge(k, o, pose_of(k) * pose_of(o).inverse());
             }
         }
         for &(k, o) in &loop_links {
-            edge(k, o, pose_of(k) * pose_of(o).inverse(), 1.0);
+            edge(k, o, pose_of(k) * pose_of(o).inverse());
         }
         for &k in &live {
             let kf = &self.keyframes[k];
@@ -403,7 +390,7 @@ impl Map {
                 .filter(|e| e.1 >= STRONG_COVISIBILITY)
                 .map(|e| e.0);
             for o in kf.parent.into_iter().chain(strong) {
-                edge(k, o, before[k] * before[o].inverse(), 1.0);
+                edge(k, o, before[k] * before[o].inverse());
             }
         }
         let mut fixed = vec![false; live.len()];

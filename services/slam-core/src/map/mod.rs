@@ -432,21 +432,11 @@ impl Map {
         kf.parent = parent;
     }
 
-    /// Puts keyframe `id` in the keyframe database (its vector from
-    /// `vocabulary`); a database made with another vocabulary is rebuilt
-    /// first.
-    pub fn index_keyframe(&mut self, id: usize, vocabulary: &Vocabulary) {
-        if !self.database.is_made_with(vocabulary) {
-            self.reindex(vocabulary);
-        }
-        let vector = vocabulary.bow(&self.keyframes[id].descriptors());
-        self.database.add(id, vector);
-    }
-
     /// Makes sure every live keyframe is in a database made with
-    /// `vocabulary` (a map from a file written with another vocabulary, or
-    /// with keyframes not yet mapped when it was saved). Returns how many
-    /// keyframes were (re)indexed.
+    /// `vocabulary`: the keyframe local mapping is working on, and all of a
+    /// map from a file written with another vocabulary (or with keyframes
+    /// not yet mapped when it was saved). Returns how many keyframes were
+    /// (re)indexed.
     pub fn reindex(&mut self, vocabulary: &Vocabulary) -> usize {
         if !self.database.is_made_with(vocabulary) {
             self.database = KeyframeDatabase::new(vocabulary);

@@ -94,22 +94,10 @@ impl KeyframeDatabase {
         self.candidates(query, 0.0, |_| false, covisible)
     }
 
-    /// The keyframes a new keyframe may close a loop with (ORB-SLAM2's
-    /// DetectLoopCandidates): as [`KeyframeDatabase::candidates`], leaving
-    /// out the keyframes `connected` to it, and scoring at least
-    /// `min_score` (the lowest score of its covisible keyframes: a loop
-    /// candidate must look at least as much alike as its neighbours do).
-    pub fn loop_candidates(
-        &self,
-        query: &BowVector,
-        min_score: f32,
-        connected: impl Fn(usize) -> bool,
-        covisible: impl Fn(usize) -> Vec<usize>,
-    ) -> Vec<usize> {
-        self.candidates(query, min_score, connected, covisible)
-    }
-
-    /// Candidates for `query`, best first: keyframes (not `excluded`)
+    /// Candidates for `query`, best first (loop detection: ORB-SLAM2's
+    /// DetectLoopCandidates, with the keyframes connected to the new one
+    /// `excluded` and `min_score` the lowest score of its neighbours):
+    /// keyframes (not `excluded`)
     /// sharing at least 80 % of the most words any of them shares with it,
     /// scoring at least `min_score`; each one's score accumulated over its
     /// `covisible` neighbours among them (a place is seen by a group of

@@ -246,21 +246,27 @@ impl Vocabulary {
 
     /// The bag-of-words vector of a set of descriptors (TF-IDF, L1 normalised).
     pub fn bow(&self, descs: &[Descriptor]) -> BowVector {
-        self.transform(descs).0
+        let words: Vec<u32> = descs.iter().map(|d| self.word_of(d).0).collect();
+        self.bow_of_words(words)
     }
 
     /// The bag-of-words vector and the feature vector of a set of descriptors.
     pub fn transform(&self, descs: &[Descriptor]) -> (BowVector, FeatureVector) {
-        let mut words: Vec<(u32, f32)> = Vec::with_capacity(descs.len());
-        let mut nodes: Vec<(u32, u32)> = Vec::with_capacity(descs.len());
-        for (i, d) in descs.iter().enumerate() {
-            let (word, node) = self.word_of(d);
-            words.push((word, self.idf[word as usize]));
-            nodes.push((node, i as u32));
-        }
-        words.sort_unstable_by_key(|w| w.0);
+        let (words, nodes): (Vec<u32>, Vec<u32>) = descs.iter().map(|d| self.word_of(d)).unzip();
+        (self.bow_of_words(words), feature_vector(nodes))
+    }
+
+    /// The feature vector alone.
+    pub fn features(&self, descs: &[Descriptor]) -> FeatureVector {
+        feature_vector(descs.iter().map(|d| self.word_of(d).1).collect())
+    }
+
+    /// TF-IDF vector of the descriptors' words, L1 normalised.
+    fn bow_of_words(&self, mut words: Vec<u32>) -> BowVector {
+        words.sort_unstable();
         let mut bow: Vec<(u32, f32)> = Vec::new();
-        for (w, weight) in words {
+        for w in words {
+            let weight = self.idf[w as usize];
             match bow.last_mut() {
                 Some(last) if last.0 == w => last.1 += weight,
                 _ => bow.push((w, weight)),
@@ -274,20 +280,7 @@ impl Vocabulary {
                 w.1 /= total;
             }
         }
-        nodes.sort_unstable();
-        let mut features: Vec<(u32, Vec<u32>)> = Vec::new();
-        for (node, i) in nodes {
-            match features.last_mut() {
-                Some(last) if last.0 == node => last.1.push(i),
-                _ => features.push((node, vec![i])),
-            }
-        }
-        (BowVector(bow), FeatureVector(features))
-    }
-
-    /// The feature vector alone.
-    pub fn features(&self, descs: &[Descriptor]) -> FeatureVector {
-        self.transform(descs).1
+        BowVector(bow)
     }
 
     /// Trains a vocabulary on the descriptors of `images` (one list per
@@ -359,13 +352,9 @@ impl Vocabulary {
         }
         // Words are numbered over the whole tree, breadth first.
         let mut word = 0;
-        for n in nodes.iter_mut().skip(1) {
-            if n.children == 0 {
-                n.word = word;
-                word += 1;
-            } else {
-                n.word = INNER;
-            }
+        for n in nodes.iter_mut().skip(1).filter(|n| n.children == 0) {
+            n.word = word;
+            word += 1;
         }
         let mut vocabulary = Vocabulary {
             branching: opts.branching as u32,
@@ -507,6 +496,25 @@ impl Vocabulary {
         }
         Ok(())
     }
+}
+
+/// Descriptor indices grouped by their node (`nodes[i]` is descriptor
+/// i's), sorted by node.
+fn feature_vector(nodes: Vec<u32>) -> FeatureVector {
+    let mut order: Vec<(u32, u32)> = nodes
+        .into_iter()
+        .enumerate()
+        .map(|(i, n)| (n, i as u32))
+        .collect();
+    order.sort_unstable();
+    let mut features: Vec<(u32, Vec<u32>)> = Vec::new();
+    for (node, i) in order {
+        match features.last_mut() {
+            Some(last) if last.0 == node => last.1.push(i),
+            _ => features.push((node, vec![i])),
+        }
+    }
+    FeatureVector(features)
 }
 
 /// k-means of the descriptors `members` (indices into `all`) into at most

@@ -2,13 +2,12 @@
 //! keyframes from the keyframe database by bag of words, matches by bag of
 //! words, then RANSAC on depth or pixels.
 
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Isometry3, Vector3};
 
 use super::Tracking;
 use crate::frame::Frame;
-use crate::geometry::alignment::fit_rigid;
 use crate::geometry::pnp::{pnp_ransac, PnpMatch};
-use crate::geometry::ransac::Ransac;
+use crate::geometry::ransac::rigid_ransac;
 use crate::map::Map;
 use crate::matcher::match_by_bow;
 use crate::optimizer::pose::is_finite_pose;
@@ -50,8 +49,7 @@ impl Tracking {
     ) -> Option<Isometry3<f64>> {
         const MIN_MATCHES: usize = 20;
         let kf = &map.keyframes[id];
-        let angles: Vec<f32> = frame.kps.iter().map(|k| k.angle).collect();
-        let matches = match_by_bow(map, kf, &self.vocabulary, features, &frame.descs, &angles);
+        let matches = match_by_bow(map, kf, &self.vocabulary, features, frame);
         if matches.len() < MIN_MATCHES {
             return None;
         }
@@ -95,34 +93,22 @@ impl Tracking {
 }
 
 /// Rigid transform mapping `world` to `camera` points (camera from world)
-/// by RANSAC over 3-point fits, refitted on the inliers; None with fewer
-/// than `min_inliers` inliers.
+/// by [`rigid_ransac`]; None with fewer than `min_inliers` inliers.
 fn ransac_rigid(
     pairs: &[(Vector3<f64>, Vector3<f64>)],
     threshold: f64,
     iterations: usize,
     min_inliers: usize,
 ) -> Option<Isometry3<f64>> {
-    let search = Ransac {
-        sample: 3,
-        iterations,
-        seed: 0x5EED,
-    };
-    let (_, inliers) = search.run(
-        pairs.len(),
-        |s| fit_rigid(&s.iter().map(|&i| pairs[i]).collect::<Vec<_>>()),
-        |t, i| ((t * Point3::from(pairs[i].0)).coords - pairs[i].1).norm() < threshold,
-    )?;
-    if inliers.len() < min_inliers {
-        return None;
-    }
-    fit_rigid(&inliers.iter().map(|&i| pairs[i]).collect::<Vec<_>>())
+    rigid_ransac(pairs, threshold, iterations, 0x5EED)
+        .filter(|(_, inliers)| inliers.len() >= min_inliers)
+        .map(|(t, _)| t)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::{Translation3, UnitQuaternion};
+    use nalgebra::{Point3, Translation3, UnitQuaternion};
 
     #[test]
     fn rigid_ransac_ignores_outliers() {

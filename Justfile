@@ -115,6 +115,23 @@ eval-masks: build setup synth-people
     ./target/release/dynslam masks-eval {{people}}
 
 # People in the shared fr1_rpy sequence (3, seed 5) into .cache/synth: hidden by the nearer scene, and passing in front of it.
+# Loop closing on the rendered circuit (dynslam render --path circuit, cached in .cache/scenes): per-frame time and ATE without and with loop closing, 1000 and 250 ORB features (fewer drift more), back to back.
+bench-loops: build
+    #!/usr/bin/env bash
+    set -euo pipefail
+    seq=.cache/scenes/circuit-450
+    if [ ! -f "$seq/groundtruth.txt" ]; then
+        rm -rf "$seq"
+        ./target/release/dynslam render "$seq" --path circuit --frames 450
+    fi
+    for features in 1000 250; do
+        for loops in "" --loop-closing; do
+            echo "== circuit, $features features ${loops:-without loop closing}"
+            ./target/release/slam-bench "$seq" --features "$features" $loops \
+                --out "bench-results/circuit_${features}${loops:+_loops}.txt"
+        done
+    done
+
 synth-people: build
     #!/usr/bin/env bash
     set -euo pipefail

@@ -46,6 +46,9 @@ pub struct SlamParams {
     /// accepts no loop (forward, and forward then backward), so it changes
     /// nothing there but costs detection time (README).
     pub loop_closing: bool,
+    /// After a loop correction, bundle-adjust the whole map (on the
+    /// loop-closing thread, merged as ORB-SLAM2 does).
+    pub global_bundle_adjustment: bool,
 }
 
 impl Default for SlamParams {
@@ -64,6 +67,7 @@ impl Default for SlamParams {
             triangulate: true,
             fuse_points: false,
             loop_closing: false,
+            global_bundle_adjustment: true,
         }
     }
 }

@@ -19,7 +19,8 @@ use crate::initialization::initialise_rgbd;
 use crate::io::map_file::{MapFile, MapFileError};
 use crate::local_mapping::checkpoint::{CheckpointPolicy, Checkpointer};
 use crate::local_mapping::{map_keyframe, LocalMapper};
-use crate::loop_closing::{LoopCloser, LoopClosure};
+use crate::loop_closing::thread::LoopClosing;
+use crate::loop_closing::LoopClosure;
 use crate::map::{Map, MappingCounts, MappingReport};
 use crate::params::SlamParams;
 use crate::place_recognition::Vocabulary;
@@ -115,13 +116,17 @@ pub struct System {
     /// Bag-of-words vocabulary of the keyframe database (relocalisation).
     vocabulary: Arc<Vocabulary>,
     /// Loop closing when mapping is inline (the mapping thread has its own).
-    loop_closer: Option<LoopCloser>,
+    inline_loops: LoopClosing,
+    /// The newest keyframe and its pose when its local mapping started
+    /// (tracking follows the keyframe if mapping moves it).
+    mapped_keyframe: Option<(usize, Isometry3<f64>)>,
     /// Every tracked frame: timestamp, reference keyframe, camera from
     /// reference keyframe (see [`System::trajectory`]).
     tracked_frames: Vec<(f64, usize, Isometry3<f64>)>,
     /// The loops closed so far, and the time loop detection took.
     loops: Vec<LoopClosure>,
-    loop_detect_ms: Vec<f64>,
+    /// Every report of the loop closer.
+    loop_reports: Vec<crate::loop_closing::LoopReport>,
 }
 
 /// What the keyframe rule made of a tracked frame.
@@ -170,11 +175,12 @@ impl System {
             mapper,
             mapping: Mapping::Idle,
             tracking: Tracking::new(camera, params, vocabulary.clone()),
-            loop_closer: params.loop_closing.then(|| LoopCloser::new(camera)),
+            inline_loops: LoopClosing::new(&params, camera, false),
+            mapped_keyframe: None,
             vocabulary,
             tracked_frames: Vec::new(),
             loops: Vec::new(),
-            loop_detect_ms: Vec::new(),
+            loop_reports: Vec::new(),
             localize_only: false,
             checkpointer: None,
             keyframes_inserted: 0,
@@ -227,9 +233,10 @@ impl System {
         });
     }
 
-    /// The map as a file's contents (once local mapping has given it back).
+    /// The map as a file's contents (once local mapping has given it back
+    /// and loop closing has finished).
     pub fn map_file(&mut self) -> MapFile {
-        self.settle();
+        self.finish_loops();
         MapFile::new(self.camera, &self.params, self.map.clone())
     }
 
@@ -531,9 +538,10 @@ impl System {
         }
     }
 
-    /// The map, once local mapping has given it back.
+    /// The map, once local mapping has given it back and loop closing has
+    /// finished.
     pub fn map(&mut self) -> &Map {
-        self.settle();
+        self.finish_loops();
         &self.map
     }
 
@@ -551,7 +559,7 @@ impl System {
     /// that a loop correction moves the frames before it too. Without a
     /// correction (and with local BA off) it is the poses tracking gave.
     pub fn trajectory(&mut self) -> crate::io::trajectory::Trajectory {
-        self.settle();
+        self.finish_loops();
         let mut out = crate::io::trajectory::Trajectory {
             stamps: Vec::with_capacity(self.tracked_frames.len()),
             poses: Vec::with_capacity(self.tracked_frames.len()),
@@ -581,9 +589,25 @@ impl System {
         &self.loops
     }
 
-    /// Loop detection time (ms) after each mapped keyframe.
-    pub fn loop_detection_ms(&self) -> &[f64] {
-        &self.loop_detect_ms
+    /// Per loop closed: the time (ms) its correction and the global bundle
+    /// adjustment after it took (on the loop-closing thread when mapping
+    /// has a thread).
+    pub fn loop_correction_ms(&self) -> Vec<(f64, f64)> {
+        self.loop_reports
+            .iter()
+            .filter(|r| r.closed.is_some())
+            .map(|r| (r.correct_ms, r.global_ba_ms))
+            .collect()
+    }
+
+    /// Per mapped keyframe: the time (ms) spent deciding whether it closes
+    /// a loop (candidates, and their verification wherever it ran).
+    pub fn loop_detection_ms(&self) -> Vec<f64> {
+        let mut per_keyframe: std::collections::BTreeMap<usize, f64> = Default::default();
+        for r in &self.loop_reports {
+            *per_keyframe.entry(r.keyframe).or_default() += r.detect_ms + r.verify_ms;
+        }
+        per_keyframe.into_values().collect()
     }
 
     /// The keyframe the last relocalisation found the camera at (by bag
@@ -606,6 +630,7 @@ impl System {
             .as_ref()
             .filter(|c| self.keyframes_inserted.is_multiple_of(c.every_keyframes()))
             .map(Checkpointer::sender);
+        self.mapped_keyframe = Some((id, self.map.keyframes[id].pose_cw));
         if let Some(mapper) = &self.mapper {
             match mapper.submit(std::mem::take(&mut self.map), id, checkpoint.clone()) {
                 Ok(()) => {
@@ -625,7 +650,7 @@ impl System {
             &self.camera,
             &self.params,
             &self.vocabulary,
-            self.loop_closer.as_mut(),
+            &mut self.inline_loops,
         );
         if let Some(to_writer) = checkpoint {
             to_writer.offer(&self.map);
@@ -661,25 +686,48 @@ impl System {
             },
         };
         self.mapped += report.counts;
-        if self.params.loop_closing {
-            self.loop_detect_ms.push(report.loops.detect_ms);
-        }
-        if let Some(closed) = report.loops.closed {
-            tracing::info!(
-                "loop closed: keyframe {} with {} ({} inliers), corrected {:.3} m / {:.2} deg",
-                closed.keyframe,
-                closed.matched,
-                closed.inliers,
-                closed.correction_m,
-                closed.correction_deg
-            );
-            self.loops.push(closed);
-        }
-        if report.adjusted {
-            if let Some(kf) = self.map.keyframes.last() {
-                self.tracking.adopt_adjusted_pose(kf.pose_cw);
+        for r in &report.loops {
+            self.loop_reports.push(*r);
+            if let Some(closed) = r.closed {
+                tracing::info!(
+                    "loop closed: keyframe {} with {} ({} inliers), corrected {:.3} m / {:.2} deg \
+                     (correction {:.0} ms, global BA {:.0} ms)",
+                    closed.keyframe,
+                    closed.matched,
+                    closed.inliers,
+                    closed.correction_m,
+                    closed.correction_deg,
+                    r.correct_ms,
+                    r.global_ba_ms,
+                );
+                self.loops.push(closed);
             }
         }
+        if let Some((id, before)) = self.mapped_keyframe.take() {
+            if let Some(kf) = self.map.keyframes.get(id).filter(|_| report.adjusted) {
+                self.tracking.follow_keyframe(&before, &kf.pose_cw);
+            }
+        }
+    }
+
+    /// Settles local mapping, then waits for the loop-closing thread to
+    /// finish what it was given and merges its corrections.
+    fn finish_loops(&mut self) {
+        self.settle();
+        let Some(mapper) = &self.mapper else {
+            return;
+        };
+        if !self.params.loop_closing {
+            return;
+        }
+        if let Some(id) = self.map.keyframes.len().checked_sub(1) {
+            self.mapped_keyframe = Some((id, self.map.keyframes[id].pose_cw));
+        }
+        match mapper.flush(std::mem::take(&mut self.map)) {
+            Ok(()) => self.mapping = Mapping::OnThread,
+            Err(map) => self.map = map,
+        }
+        self.settle();
     }
 
     fn bounds(&mut self, width: usize, height: usize) -> Bounds {

@@ -46,7 +46,7 @@ fn run(loop_closing: bool, order: &[usize]) -> (f64, usize, Vec<f64>) {
     for l in sys.loops() {
         eprintln!("  loop {l:?}");
     }
-    (ate, sys.loops().len(), sys.loop_detection_ms().to_vec())
+    (ate, sys.loops().len(), sys.loop_detection_ms())
 }
 
 fn p99(v: &[f64]) -> f64 {

@@ -40,13 +40,25 @@ pub fn append(path: &Path, loops: &[(f64, LoopClosure)]) -> std::io::Result<()> 
 
 /// The rows of a `loops.csv` (header left out); an absent file has none.
 pub fn count_rows(path: &Path) -> std::io::Result<usize> {
+    Ok(timestamps(path)?.len())
+}
+
+/// The timestamp of each row of a `loops.csv` (NaN where it is not a
+/// number); an absent file has none.
+pub fn timestamps(path: &Path) -> std::io::Result<Vec<f64>> {
     match std::fs::read_to_string(path) {
         Ok(text) => Ok(text
             .lines()
             .skip(1)
             .filter(|l| !l.trim().is_empty())
-            .count()),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(0),
+            .map(|l| {
+                l.split(',')
+                    .next()
+                    .and_then(|t| t.trim().parse().ok())
+                    .unwrap_or(f64::NAN)
+            })
+            .collect()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(Vec::new()),
         Err(e) => Err(e),
     }
 }
@@ -82,6 +94,7 @@ mod tests {
             "{text}"
         );
         assert_eq!(count_rows(&path).unwrap(), 3);
+        assert_eq!(timestamps(&path).unwrap(), vec![1014.9, 1020.0, 1021.0]);
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -49,19 +49,34 @@ struct Args {
     /// written when the file is new): a killed process loses none.
     #[arg(long)]
     loops_out: Option<std::path::PathBuf>,
+    /// At stop, when a loop closed: write the trajectory as the final map
+    /// stands (every frame moved with its keyframe by the loop corrections)
+    /// here (TUM format).
+    #[arg(long)]
+    corrected_trajectory_out: Option<std::path::PathBuf>,
+}
+
+/// What the service writes besides its messages.
+struct Outputs {
+    map: Option<std::path::PathBuf>,
+    loops: Option<std::path::PathBuf>,
+    corrected_trajectory: Option<std::path::PathBuf>,
 }
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    let map_out = args.map_out.clone();
-    let loops_out = args.loops_out.clone();
+    let outputs = Outputs {
+        map: args.map_out.clone(),
+        loops: args.loops_out.clone(),
+        corrected_trajectory: args.corrected_trajectory_out.clone(),
+    };
     let files = MapFiles {
         checkpoint: args.checkpoint.clone(),
         resume_poses: args.resume_poses.clone(),
         ..MapFiles::default()
     };
     run_service(ServiceKind::Slam, &args.service, move |ctx| {
-        run(ctx, map_out.as_deref(), loops_out.as_deref(), files)
+        run(ctx, &outputs, files)
     })
 }
 
@@ -120,12 +135,8 @@ struct State {
 /// keyframes are made from propagated masks again.
 const SEGMENTER_PATIENCE: u64 = 60;
 
-fn run(
-    ctx: ServiceContext,
-    map_out: Option<&std::path::Path>,
-    loops_out: Option<&std::path::Path>,
-    files: MapFiles,
-) -> Result<()> {
+fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
+    let loops_out = outputs.loops.as_deref();
     let mut tracker = tracker_from_config(&ctx, files)?;
     let frames = ctx.transport.slice_receiver::<FrameHeader>(Topic::Frames)?;
     let masks = ctx.transport.slice_receiver::<MasksHeader>(Topic::Masks)?;
@@ -155,7 +166,14 @@ fn run(
             // (`finish` inserts a keyframe still waiting for its masks.)
             tracker.finish().map_err(anyhow::Error::msg)?;
             record_loops(&mut *tracker, loops_out)?;
-            if let Some(path) = map_out {
+            if let Some(path) = &outputs.corrected_trajectory {
+                if let Some(trajectory) = tracker.corrected_trajectory() {
+                    std::fs::write(path, trajectory.to_tum())
+                        .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
+                    tracing::info!("loop-corrected trajectory written to {}", path.display());
+                }
+            }
+            if let Some(path) = &outputs.map {
                 let points = tracker.map_points();
                 write_ply(path, &points).map_err(|e| {
                     anyhow::anyhow!("cannot write the map to {}: {e}", path.display())

@@ -193,6 +193,10 @@ impl Tracker for RgbdTracker {
         new
     }
 
+    fn corrected_trajectory(&mut self) -> Option<slam_core::io::trajectory::Trajectory> {
+        (!self.system.loops().is_empty()).then(|| self.system.trajectory())
+    }
+
     fn map_points(&mut self) -> Vec<ColouredPoint> {
         self.system
             .map()

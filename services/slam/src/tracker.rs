@@ -56,6 +56,11 @@ pub trait Tracker {
     fn take_loops(&mut self) -> Vec<(f64, slam_core::loop_closing::LoopClosure)> {
         Vec::new()
     }
+    /// After a loop closed: the trajectory as the map stands now (frames
+    /// moved with their keyframes by the corrections). None otherwise.
+    fn corrected_trajectory(&mut self) -> Option<slam_core::io::trajectory::Trajectory> {
+        None
+    }
     /// The map's points (empty for trackers without a map).
     fn map_points(&mut self) -> Vec<slam_core::io::ply::ColouredPoint> {
         Vec::new()

@@ -137,6 +137,19 @@ enum Command {
         #[arg(long)]
         plot: Option<PathBuf>,
     },
+    /// Render the synthetic room as a TUM RGB-D folder (rgb/, depth/,
+    /// groundtruth.txt; TUM fr1 camera): `--path circuit` goes once round the
+    /// room and back to its first pose, a loop for loop closing.
+    Render {
+        /// New folder to write (must not exist or be empty).
+        output: PathBuf,
+        /// The camera's path: `glide` (the default scene's) or `circuit`.
+        #[arg(long, value_enum, default_value_t = CameraPathArg::Glide)]
+        path: CameraPathArg,
+        /// Frames at 30 fps (the circuit takes them all to close).
+        #[arg(long, default_value_t = 150)]
+        frames: usize,
+    },
     /// Make a dynamic sequence: people walking through a TUM RGB-D
     /// sequence, with ground-truth masks (masks/, objects.json).
     Synth {
@@ -234,6 +247,12 @@ enum VocabAction {
     },
     /// Words, tree shape, SHA-256, load time and training summary of a vocabulary file.
     Info { file: PathBuf },
+}
+
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum CameraPathArg {
+    Glide,
+    Circuit,
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -438,6 +457,31 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             plot.as_deref(),
         )
         .map(|()| ExitCode::SUCCESS),
+        Command::Render {
+            output,
+            path,
+            frames,
+        } => {
+            let options = scenes::room::RoomOptions {
+                frames,
+                path: match path {
+                    CameraPathArg::Glide => scenes::room::CameraPath::Glide,
+                    CameraPathArg::Circuit => scenes::room::CameraPath::Circuit,
+                },
+                ..Default::default()
+            };
+            let t = std::time::Instant::now();
+            scenes::room::render_room(&output, &slam_core::Camera::tum_fr1(), &options)
+                .map(|n| {
+                    eprintln!(
+                        "{n} frames rendered to {} in {:.1} s",
+                        output.display(),
+                        t.elapsed().as_secs_f64()
+                    );
+                    ExitCode::SUCCESS
+                })
+                .map_err(anyhow::Error::from)
+        }
         Command::Synth {
             input,
             output,
@@ -684,6 +728,7 @@ fn eval(
     if let Some(path) = plot {
         let (img, _) = supervisor::plots::trajectory(
             &s.positions,
+            &[],
             &format!(
                 "{} vs {} (ATE RMSE {:.4} m)",
                 est.display(),

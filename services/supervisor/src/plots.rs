@@ -122,8 +122,13 @@ impl Views {
 
 /// Ground truth and aligned estimate in two views with the same scale on
 /// both axes; the estimate coloured by its position error (colour bar
-/// right), the start marked.
-pub fn trajectory(pairs: &[(Point3<f64>, Point3<f64>)], title: &str) -> Result<(RgbImage, Views)> {
+/// right), the start marked, and a ring on the estimate at each index in
+/// `loops` (where a loop closed).
+pub fn trajectory(
+    pairs: &[(Point3<f64>, Point3<f64>)],
+    loops: &[usize],
+    title: &str,
+) -> Result<(RgbImage, Views)> {
     anyhow::ensure!(!pairs.is_empty(), "no poses to plot");
     let gt: Vec<Point3<f64>> = pairs.iter().map(|(g, _)| *g).collect();
     let views = Views::of(&gt);
@@ -202,6 +207,22 @@ pub fn trajectory(pairs: &[(Point3<f64>, Point3<f64>)], title: &str) -> Result<(
                 .map_err(plot_err)?
                 .label("start")
                 .legend(|(x, y)| Rectangle::new([(x + 6, y - 4), (x + 14, y + 4)], RED.filled()));
+            let marks: Vec<(f64, f64)> = loops
+                .iter()
+                .filter_map(|&i| pairs.get(i))
+                .map(|(_, e)| (e[a], e[b]))
+                .collect();
+            if !marks.is_empty() {
+                chart
+                    .draw_series(
+                        marks
+                            .iter()
+                            .map(|&p| Circle::new(p, 7, MAGENTA.stroke_width(3))),
+                    )
+                    .map_err(plot_err)?
+                    .label("loop closed")
+                    .legend(|(x, y)| Circle::new((x + 10, y), 5, MAGENTA.stroke_width(2)));
+            }
             draw_legend(&mut chart, SeriesLabelPosition::UpperLeft, LABEL_PX - 2)?;
         }
         colour_bar(&bar, max_err)
@@ -534,8 +555,12 @@ mod tests {
                 )
             })
             .collect();
-        let (img, _) = trajectory(&pairs, "trajectory").unwrap();
+        let (img, _) = trajectory(&pairs, &[3], "trajectory").unwrap();
         assert_eq!(img.dimensions(), (1100, 520));
+        // The loop mark is drawn (in both views), and only where asked.
+        let magenta = |img: &RgbImage| img.pixels().filter(|p| p.0 == [255, 0, 255]).count();
+        let (plain, _) = trajectory(&pairs, &[], "trajectory").unwrap();
+        assert!(magenta(&img) > 100 + magenta(&plain), "{}", magenta(&img));
         assert!(ink(&img) > 10_000);
         let c = chart(
             &Chart {

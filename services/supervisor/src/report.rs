@@ -103,6 +103,7 @@ pub fn write(
         std::fs::write(run_dir.join(EVAL_FILE), serde_json::to_string_pretty(e)?)?;
         let (img, v) = plots::trajectory(
             &e.positions,
+            &loop_indices(run_dir, e),
             &format!(
                 "Trajectory: estimate vs ground truth (ATE RMSE {:.4} m)",
                 e.ate_rmse_m
@@ -327,6 +328,9 @@ pub fn write(
                 e.rpe_interval_trans_rmse_m,
                 e.rpe_interval_rot_rmse_deg
             )?;
+            if let Some(line) = corrected_trajectory_line(run_dir, dataset) {
+                writeln!(md, "{line}\n")?;
+            }
             writeln!(md, "![trajectory](plots/trajectory.png)\n")?;
             writeln!(
                 md,
@@ -399,7 +403,13 @@ pub fn write(
         )?;
     }
     writeln!(md, "## Files\n")?;
-    writeln!(md, "- `trajectory.txt`, `keyframes.txt`: TUM format (timestamp tx ty tz qx qy qz qw), world from camera (camera-to-world)")?;
+    writeln!(md, "- `trajectory.txt`, `keyframes.txt`: TUM format (timestamp tx ty tz qx qy qz qw), world from camera (camera-to-world), the poses as published live")?;
+    if run_dir
+        .join(crate::run::CORRECTED_TRAJECTORY_FILE)
+        .is_file()
+    {
+        writeln!(md, "- `{}`: the same frames as the final map stands, loop corrections applied (TUM format)", crate::run::CORRECTED_TRAJECTORY_FILE)?;
+    }
     writeln!(md, "- `frames.csv`: one row per frame (state, route, pose, features, features removed by masks, inliers, stage timestamps)")?;
     writeln!(md, "- `masks/`, `masks.csv`: the label image SLAM got for each frame (0 background, i+1 instance i)")?;
     let map = run_dir.join(crate::run::MAP_FILE);
@@ -445,6 +455,52 @@ pub fn write(
         masks: scores,
         latency,
     })
+}
+
+/// Where in `e`'s associated poses each loop of `loops.csv` closed (the
+/// pose nearest its timestamp).
+fn loop_indices(run_dir: &Path, e: &EvalSummary) -> Vec<usize> {
+    let stamps = slam::loops_csv::timestamps(&run_dir.join(crate::run::LOOPS_FILE));
+    stamps
+        .unwrap_or_default()
+        .into_iter()
+        .filter(|t| t.is_finite())
+        .filter_map(|t| {
+            let i = e.ate_series.partition_point(|p| p.0 < t);
+            [i.checked_sub(1), Some(i)]
+                .into_iter()
+                .flatten()
+                .filter(|&j| j < e.ate_series.len())
+                .min_by(|&a, &b| {
+                    (e.ate_series[a].0 - t)
+                        .abs()
+                        .total_cmp(&(e.ate_series[b].0 - t).abs())
+                })
+        })
+        .collect()
+}
+
+/// The accuracy of the loop-corrected trajectory the SLAM wrote at stop,
+/// as a sentence (None without one or without ground truth).
+fn corrected_trajectory_line(run_dir: &Path, dataset: &Path) -> Option<String> {
+    let path = run_dir.join(crate::run::CORRECTED_TRAJECTORY_FILE);
+    if !path.is_file() {
+        return None;
+    }
+    let gt = Trajectory::load_tum(&dataset.join("groundtruth.txt")).ok()?;
+    let name = crate::run::CORRECTED_TRAJECTORY_FILE;
+    Some(
+        match Trajectory::load_tum(&path)
+            .map_err(anyhow::Error::from)
+            .and_then(|est| Ok(evaluate(&gt, &est, EvalOptions::default())?))
+        {
+            Ok(c) => format!(
+                "With the loop corrections applied to every frame (`{name}`, {} poses): ATE RMSE {:.4} m. The table is of `trajectory.txt`, the poses as they were published live.",
+                c.pairs, c.ate_rmse_m
+            ),
+            Err(err) => format!("`{name}` cannot be evaluated: {err:#}"),
+        },
+    )
 }
 
 /// ATE/RPE of `trajectory.txt` when the dataset has ground truth.

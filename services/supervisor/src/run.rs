@@ -36,6 +36,9 @@ use crate::run_dir::{self, ChildStatus, Status};
 pub const MAP_FILE: &str = "map.ply";
 /// Loop closures, one row each (written by the SLAM service as they happen).
 pub const LOOPS_FILE: &str = "loops.csv";
+/// The SLAM's trajectory with its loop corrections applied (written at
+/// stop when a loop closed; `trajectory.txt` has the poses as published).
+pub const CORRECTED_TRAJECTORY_FILE: &str = "trajectory_loop_corrected.txt";
 
 /// How a run ended.
 #[derive(Debug, Clone)]
@@ -235,6 +238,9 @@ impl Supervisor {
             args.push(run_dir.join(MAP_FILE).to_string_lossy().into_owned());
             args.push("--loops-out".into());
             args.push(run_dir.join(LOOPS_FILE).to_string_lossy().into_owned());
+            args.push("--corrected-trajectory-out".into());
+            let corrected = run_dir.join(CORRECTED_TRAJECTORY_FILE);
+            args.push(corrected.to_string_lossy().into_owned());
             args.push("--checkpoint".into());
             let checkpoint = run_dir.join(crate::map_files::CHECKPOINT_FILE);
             args.push(checkpoint.to_string_lossy().into_owned());

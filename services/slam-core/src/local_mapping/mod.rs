@@ -26,7 +26,7 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 
 use crate::camera::Camera;
-use crate::loop_closing::LoopCloser;
+use crate::loop_closing::thread::LoopClosing;
 use crate::map::{Map, MappingReport};
 use crate::params::SlamParams;
 use crate::place_recognition::Vocabulary;
@@ -70,31 +70,51 @@ impl Map {
     }
 }
 
-/// Local mapping of keyframe `id`, then (with a loop closer) loop closing:
-/// the one job both the mapping thread and inline mapping run.
+/// Loop corrections that are ready merged, local mapping of keyframe
+/// `id`, then loop closing: the one job both the mapping thread and inline
+/// mapping run.
 pub(crate) fn map_keyframe(
     map: &mut Map,
     id: usize,
     camera: &Camera,
     params: &SlamParams,
     vocabulary: &Vocabulary,
-    closer: Option<&mut LoopCloser>,
+    loops: &mut LoopClosing,
 ) -> MappingReport {
     let t = std::time::Instant::now();
+    let mut merged = loops.merge_ready(map);
     let mut report = map.process_keyframe(id, camera, params, vocabulary);
-    if let Some(closer) = closer {
-        report.loops = closer.process(map, id);
-        report.adjusted |= report.loops.closed.is_some();
-    }
+    merged.extend(loops.after_keyframe(map, id));
+    report.note_loops(merged);
     report.ms = t.elapsed().as_secs_f64() * 1e3;
     report
 }
 
-struct Job {
-    map: Map,
-    keyframe: usize,
-    /// Hand a copy of the mapped map to the checkpoint writer.
-    checkpoint: Option<CheckpointSender>,
+impl MappingReport {
+    /// Adds the loop closer's reports; a closed loop moved keyframes.
+    pub(crate) fn note_loops(&mut self, reports: Vec<crate::loop_closing::LoopReport>) {
+        self.adjusted |= reports.iter().any(|r| r.closed.is_some());
+        self.loops.extend(reports);
+    }
+}
+
+enum Job {
+    Keyframe {
+        map: Map,
+        keyframe: usize,
+        /// Hand a copy of the mapped map to the checkpoint writer.
+        checkpoint: Option<CheckpointSender>,
+    },
+    /// Finish loop closing and merge what it found.
+    Flush(Map),
+}
+
+impl Job {
+    fn into_map(self) -> Map {
+        match self {
+            Job::Keyframe { map, .. } | Job::Flush(map) => map,
+        }
+    }
 }
 
 /// The local-mapping thread and its two channels.
@@ -117,24 +137,35 @@ impl LocalMapper {
         let worker = std::thread::Builder::new()
             .name("local-mapping".into())
             .spawn(move || {
-                let mut closer = params.loop_closing.then(|| LoopCloser::new(camera));
-                for Job {
-                    mut map,
-                    keyframe,
-                    checkpoint,
-                } in inbox
-                {
-                    let report = map_keyframe(
-                        &mut map,
-                        keyframe,
-                        &camera,
-                        &params,
-                        &vocabulary,
-                        closer.as_mut(),
-                    );
-                    if let Some(to_writer) = checkpoint {
-                        to_writer.offer(&map);
-                    }
+                let mut loops = LoopClosing::new(&params, camera, true);
+                for job in inbox {
+                    let (map, report) = match job {
+                        Job::Keyframe {
+                            mut map,
+                            keyframe,
+                            checkpoint,
+                        } => {
+                            let report = map_keyframe(
+                                &mut map,
+                                keyframe,
+                                &camera,
+                                &params,
+                                &vocabulary,
+                                &mut loops,
+                            );
+                            if let Some(to_writer) = checkpoint {
+                                to_writer.offer(&map);
+                            }
+                            (map, report)
+                        }
+                        Job::Flush(mut map) => {
+                            let t = std::time::Instant::now();
+                            let mut report = MappingReport::default();
+                            report.note_loops(loops.flush(&mut map));
+                            report.ms = t.elapsed().as_secs_f64() * 1e3;
+                            (map, report)
+                        }
+                    };
                     if outbox.send((map, report)).is_err() {
                         break;
                     }
@@ -158,12 +189,21 @@ impl LocalMapper {
     ) -> Result<(), Map> {
         match &self.jobs {
             Some(jobs) => jobs
-                .send(Job {
+                .send(Job::Keyframe {
                     map,
                     keyframe,
                     checkpoint,
                 })
-                .map_err(|e| e.0.map),
+                .map_err(|e| e.0.into_map()),
+            None => Err(map),
+        }
+    }
+
+    /// Hands `map` over for loop closing to finish (what it is working on
+    /// and what waits) and merge; gives it back if the thread is gone.
+    pub fn flush(&self, map: Map) -> Result<(), Map> {
+        match &self.jobs {
+            Some(jobs) => jobs.send(Job::Flush(map)).map_err(|e| e.0.into_map()),
             None => Err(map),
         }
     }

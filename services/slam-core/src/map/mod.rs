@@ -46,8 +46,9 @@ pub struct MappingReport {
     /// Local bundle adjustment or a loop correction moved keyframe poses.
     pub adjusted: bool,
     pub counts: MappingCounts,
-    /// What the loop closer did after it (when loop closing is on).
-    pub loops: crate::loop_closing::LoopReport,
+    /// What the loop closer reported meanwhile (when loop closing is on):
+    /// inline, about this keyframe; on its thread, about earlier ones.
+    pub loops: Vec<crate::loop_closing::LoopReport>,
 }
 
 /// What local mapping added to and merged in the map.

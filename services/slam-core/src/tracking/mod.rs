@@ -154,10 +154,18 @@ impl Tracking {
         self.last_pose
     }
 
-    /// Local bundle adjustment moved the newest keyframe, which is the last
-    /// tracked frame: tracking goes on from its adjusted pose.
-    pub fn adopt_adjusted_pose(&mut self, pose_cw: Isometry3<f64>) {
-        self.last_pose = Some(pose_cw);
+    /// Local bundle adjustment or a loop correction moved the newest
+    /// keyframe from `before` to `after` (camera from world): the recent
+    /// frames, tracked relative to it, move with it (for the keyframe's own
+    /// frame, the last one tracked, that is its adjusted pose).
+    pub fn follow_keyframe(&mut self, before: &Isometry3<f64>, after: &Isometry3<f64>) {
+        let world_change = before.inverse() * after;
+        if let Some(last) = &mut self.last_pose {
+            *last = renormalized(&(*last * world_change));
+        }
+        for (_, pose_cw) in &mut self.recent {
+            *pose_cw = renormalized(&(*pose_cw * world_change));
+        }
     }
 
     /// Where the constant-velocity model puts a frame taken at `timestamp`:

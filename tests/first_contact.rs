@@ -113,7 +113,7 @@ fn an_image_folder_with_the_rgbd_slam_is_an_error_naming_the_key() {
     assert_eq!(r.output.status.code(), Some(1));
     let stderr = r.stderr();
     assert!(
-        stderr.contains("source.kind") && stderr.contains("services.slam.backend"),
+        stderr.contains("source.kind") && stderr.contains("services.slam.sensor"),
         "{stderr}"
     );
     assert!(!r.run_dir.exists(), "no run folder for a config error");

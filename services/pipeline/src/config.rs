@@ -339,6 +339,7 @@ impl Default for ServicesConfig {
                 threads: Some(2),
                 mask_mode: "filter".into(),
                 checkpoint_every_keyframes: Some(1),
+                sensor: "rgbd".into(),
                 ..ServiceConfig::default()
             },
         }
@@ -407,6 +408,17 @@ pub struct ServiceConfig {
     /// SLAM: look for loops after each keyframe and correct the map when
     /// one closes (`loops.csv` in the run folder; off by default).
     pub loop_closing: bool,
+    /// SLAM (`orb-rgbd`): `rgbd` (colour and depth) or `monocular` (colour
+    /// only: depth ignored; the map's scale is its own, evaluated with a
+    /// Sim(3) alignment).
+    pub sensor: String,
+}
+
+impl ServiceConfig {
+    /// SLAM: the sensor is a colour camera alone.
+    pub fn is_monocular(&self) -> bool {
+        self.sensor == "monocular"
+    }
 }
 
 /// A configuration error that names the file, the key path and the problem.
@@ -570,6 +582,20 @@ impl PipelineConfig {
             ));
         }
         let slam = &self.services.slam;
+        if !matches!(slam.sensor.as_str(), "" | "rgbd" | "monocular") {
+            return Err(format!(
+                "key `services.slam.sensor`: '{}' is not one of rgbd, monocular",
+                slam.sensor
+            ));
+        }
+        if slam.is_monocular() && slam.loop_closing {
+            return Err(
+                "key `services.slam.loop_closing`: loop closing corrects an SE(3) (RGB-D); \
+                 a monocular map drifts in scale too and needs a Sim(3) correction, not built yet: \
+                 turn one of them off"
+                    .into(),
+            );
+        }
         if let Some(n) = slam.checkpoint_every_keyframes.filter(|&n| n > 100_000) {
             return Err(format!(
                 "key `services.slam.checkpoint_every_keyframes`: {n} is not a keyframe count (0 = only at stop ..= 100000)"
@@ -587,11 +613,14 @@ impl PipelineConfig {
                     .into(),
             );
         }
-        if self.source.kind == SourceKind::Images && self.services.slam.backend == "orb-rgbd" {
+        if self.source.kind == SourceKind::Images
+            && self.services.slam.backend == "orb-rgbd"
+            && !self.services.slam.is_monocular()
+        {
             return Err(
-                "key `source.kind`: \"images\" plays frames without depth, and \
-                 `services.slam.backend = \"orb-rgbd\"` needs depth (monocular SLAM is not built \
-                 yet): use a TUM RGB-D folder (kind = \"tum\")"
+                "key `services.slam.sensor`: \"rgbd\" needs depth, and `source.kind = \"images\"` \
+                 plays frames without it: set services.slam.sensor = \"monocular\" (or play a TUM \
+                 RGB-D folder, kind = \"tum\")"
                     .into(),
             );
         }
@@ -762,11 +791,34 @@ mod tests {
     fn an_image_folder_with_the_rgbd_slam_is_an_error_naming_the_keys() {
         let err = PipelineConfig::parse("[source]\nkind = \"images\"\n").unwrap_err();
         assert!(err.contains("source.kind"), "{err}");
-        assert!(err.contains("services.slam.backend"), "{err}");
+        assert!(err.contains("services.slam.sensor"), "{err}");
         PipelineConfig::parse(
             "[source]\nkind = \"images\"\n[services.slam]\nbackend = \"scripted\"\n",
         )
         .unwrap();
+        let mono = PipelineConfig::parse(
+            "[source]\nkind = \"images\"\n[services.slam]\nsensor = \"monocular\"\n",
+        )
+        .unwrap();
+        assert!(mono.services.slam.is_monocular());
+    }
+
+    #[test]
+    fn a_bad_sensor_and_monocular_loop_closing_are_errors_naming_the_key() {
+        let err = PipelineConfig::parse("[services.slam]\nsensor = \"stereo\"\n").unwrap_err();
+        assert!(
+            err.contains("services.slam.sensor")
+                && err.contains("stereo")
+                && err.contains("line 2"),
+            "{err}"
+        );
+        let err =
+            PipelineConfig::parse("[services.slam]\nsensor = \"monocular\"\nloop_closing = true\n")
+                .unwrap_err();
+        assert!(
+            err.contains("services.slam.loop_closing") && err.contains("Sim(3)"),
+            "{err}"
+        );
     }
 
     #[test]

@@ -250,11 +250,27 @@ pub fn evaluate(
 
     let consecutive: Vec<(usize, usize)> = (1..gt.len()).map(|j| (j - 1, j)).collect();
     let (rpe_t, rpe_r) = relative_errors(&gt.poses, &aligned, &consecutive);
-    let interval: Vec<(usize, usize)> = (0..gt.len())
+    // Pairs `rpe_interval_s` apart by the estimate's timestamps, the one
+    // closest to it (as the TUM benchmark's evaluate_rpe.py picks them).
+    let stamps = &est.stamps;
+    let last = stamps.last().copied().unwrap_or(f64::NEG_INFINITY);
+    let interval: Vec<(usize, usize)> = (0..est.len())
         .filter_map(|i| {
-            let target = gt.stamps[i] + opts.rpe_interval_s;
-            let j = gt.stamps.partition_point(|&t| t < target - 1e-9);
-            (j < gt.len()).then_some((i, j))
+            let target = stamps[i] + opts.rpe_interval_s;
+            if target > last + opts.max_diff {
+                return None;
+            }
+            let j = stamps.partition_point(|&t| t < target);
+            let j = [j.checked_sub(1), Some(j)]
+                .into_iter()
+                .flatten()
+                .filter(|&j| j > i && j < stamps.len())
+                .min_by(|&a, &b| {
+                    (stamps[a] - target)
+                        .abs()
+                        .total_cmp(&(stamps[b] - target).abs())
+                })?;
+            Some((i, j))
         })
         .collect();
     let (int_t, int_r) = relative_errors(&gt.poses, &aligned, &interval);

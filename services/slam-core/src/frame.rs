@@ -25,18 +25,20 @@ pub struct RgbdInput<'a> {
 }
 
 impl RgbdInput<'_> {
-    /// The buffers match the size and the image is big enough to track.
+    /// The buffers match the size (depth may be empty: a colour camera)
+    /// and the image is big enough to track.
     pub fn is_well_formed(&self) -> bool {
         let pixels = self.width * self.height;
         self.width >= 64
             && self.height >= 64
             && self.rgb.len() == 3 * pixels
-            && self.depth.len() == pixels
+            && (self.depth.len() == pixels || self.depth.is_empty())
             && self.mask.is_none_or(|m| m.len() == pixels)
     }
 }
 
 /// One frame's features.
+#[derive(Clone)]
 pub struct Frame {
     pub kps: Vec<KeyPoint>,
     /// Undistorted keypoint pixels.
@@ -83,6 +85,12 @@ impl Frame {
             .iter()
             .map(|k| camera.undistort(k.x as f64, k.y as f64))
             .collect();
+        // A monocular system ignores depth that comes with the frames.
+        let depth_image: &[u16] = if params.is_monocular() {
+            &[]
+        } else {
+            input.depth
+        };
         let mut depth: Vec<Option<f64>> = kps
             .iter()
             .map(|k| {
@@ -90,7 +98,7 @@ impl Frame {
                     (k.x.round() as usize).min(width - 1),
                     (k.y.round() as usize).min(height - 1),
                 );
-                let raw = input.depth.get(y * width + x).copied().unwrap_or(0);
+                let raw = depth_image.get(y * width + x).copied().unwrap_or(0);
                 let d = raw as f64 / camera.depth_scale;
                 (d >= params.min_depth_m && d <= params.max_depth_m).then_some(d)
             })

@@ -47,6 +47,6 @@ pub mod tracking;
 pub use camera::Camera;
 pub use frame::RgbdInput;
 pub use io::map_file::{MapFile, MapFileError};
-pub use params::SlamParams;
+pub use params::{Sensor, SlamParams};
 pub use system::{FrameCounts, FrameResult, KeyframeTiming, System};
 pub use tracking::TrackingState;

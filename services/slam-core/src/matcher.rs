@@ -1,6 +1,7 @@
 //! Descriptor matching, in one place: a frame against map points by
 //! projection (tracking), a frame against a keyframe's points by bag of
-//! words (relocalisation), and two keyframes' spare keypoints
+//! words (relocalisation), two frames' keypoints near the same pixel
+//! (monocular initialisation), and two keyframes' spare keypoints
 //! along the epipolar line (triangulation). Fusion's search, which merges
 //! as it goes, is in [`crate::local_mapping::fusion`].
 
@@ -23,6 +24,65 @@ const EPIPOLAR_CHI2: f64 = 3.84;
 const BOW_RATIO: f64 = 0.75;
 /// Exhaustive matching's ratio test between the best and second-best point.
 const EXHAUSTIVE_RATIO: f64 = 0.8;
+/// Matching for initialisation: the ratio (ORB-SLAM2's SearchForInitialization: 0.9).
+const INITIALISATION_RATIO: f64 = 0.9;
+
+/// For each keypoint of `reference`, the keypoint of `current` on the same
+/// pyramid level within `window` pixels with the closest descriptor (below
+/// the threshold, clearly better than the second best, each keypoint of
+/// `current` used once: the closer wins), kept when its change of
+/// orientation agrees with most others (ORB-SLAM2's
+/// SearchForInitialization). Returns (reference keypoint, current keypoint).
+pub fn match_for_initialisation(
+    reference: &Frame,
+    current: &Frame,
+    window: f64,
+) -> Vec<(usize, usize)> {
+    // Per current keypoint: (distance, reference keypoint).
+    let mut taken: Vec<Option<(u32, usize)>> = vec![None; current.kps.len()];
+    let mut near = Vec::new();
+    for (i, kp) in reference.kps.iter().enumerate() {
+        let (u, v) = reference.un[i];
+        current.grid.near(u, v, window, &mut near);
+        let (mut best, mut second, mut best_j) = (u32::MAX, u32::MAX, None);
+        for &j in &near {
+            let (cu, cv) = current.un[j];
+            if current.kps[j].level != kp.level
+                || (cu - u).powi(2) + (cv - v).powi(2) > window * window
+            {
+                continue;
+            }
+            let d = hamming(&reference.descs[i], &current.descs[j]);
+            if d < best {
+                (second, best, best_j) = (best, d, Some(j));
+            } else if d < second {
+                second = d;
+            }
+        }
+        let Some(j) = best_j else { continue };
+        if best > MATCH_MAX_DISTANCE || best as f64 >= INITIALISATION_RATIO * second as f64 {
+            continue;
+        }
+        if taken[j].is_none_or(|(d, _)| best < d) {
+            taken[j] = Some((best, i));
+        }
+    }
+    let pairs: Vec<(usize, usize)> = taken
+        .iter()
+        .enumerate()
+        .filter_map(|(j, t)| t.map(|(_, i)| (i, j)))
+        .collect();
+    let rotations: Vec<f32> = pairs
+        .iter()
+        .map(|&(i, j)| current.kps[j].angle - reference.kps[i].angle)
+        .collect();
+    pairs
+        .into_iter()
+        .zip(consistent_rotations(&rotations))
+        .filter(|(_, ok)| *ok)
+        .map(|(p, _)| p)
+        .collect()
+}
 
 /// A search by projection.
 #[derive(Debug, Clone, Copy)]

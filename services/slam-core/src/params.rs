@@ -2,8 +2,21 @@
 
 use crate::features::orb::OrbParams;
 
+/// What the camera gives the SLAM.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum Sensor {
+    /// Colour and registered depth: the map is metric from the first frame.
+    #[default]
+    Rgbd,
+    /// Colour only (depth ignored if given): the map starts from two views
+    /// ([`crate::initialization::two_view`]) at an arbitrary scale (the
+    /// first keyframe's median scene depth is 1).
+    Monocular,
+}
+
 #[derive(Debug, Clone, Copy)]
 pub struct SlamParams {
+    pub sensor: Sensor,
     pub orb: OrbParams,
     /// Keypoints with depth in this range (metres) get 3D measurements.
     pub min_depth_m: f64,
@@ -51,9 +64,27 @@ pub struct SlamParams {
     pub global_bundle_adjustment: bool,
 }
 
+impl SlamParams {
+    /// The defaults for a monocular camera: local bundle adjustment on
+    /// (without depth it is what fixes the triangulated points; ORB-SLAM2
+    /// runs it in every mode).
+    pub fn monocular() -> Self {
+        Self {
+            sensor: Sensor::Monocular,
+            local_ba_keyframes: 10,
+            ..Self::default()
+        }
+    }
+
+    pub fn is_monocular(&self) -> bool {
+        self.sensor == Sensor::Monocular
+    }
+}
+
 impl Default for SlamParams {
     fn default() -> Self {
         Self {
+            sensor: Sensor::Rgbd,
             orb: OrbParams::default(),
             min_depth_m: 0.1,
             max_depth_m: 6.0,

@@ -15,7 +15,7 @@ use crate::camera::{Bounds, Camera};
 use crate::features::mask::DynamicMask;
 use crate::features::orb::OrbExtractor;
 use crate::frame::{Frame, RgbdInput};
-use crate::initialization::initialise_rgbd;
+use crate::initialization::{initialise_rgbd, MonocularInitializer};
 use crate::io::map_file::{MapFile, MapFileError};
 use crate::local_mapping::checkpoint::{CheckpointPolicy, Checkpointer};
 use crate::local_mapping::{map_keyframe, LocalMapper};
@@ -117,6 +117,8 @@ pub struct System {
     vocabulary: Arc<Vocabulary>,
     /// Loop closing when mapping is inline (the mapping thread has its own).
     inline_loops: LoopClosing,
+    /// A monocular map's start: the reference view and its attempts.
+    monocular_start: MonocularInitializer,
     /// The newest keyframe and its pose when its local mapping started
     /// (tracking follows the keyframe if mapping moves it).
     mapped_keyframe: Option<(usize, Isometry3<f64>)>,
@@ -176,6 +178,7 @@ impl System {
             mapping: Mapping::Idle,
             tracking: Tracking::new(camera, params, vocabulary.clone()),
             inline_loops: LoopClosing::new(&params, camera, false),
+            monocular_start: MonocularInitializer::default(),
             mapped_keyframe: None,
             vocabulary,
             tracked_frames: Vec::new(),
@@ -248,9 +251,25 @@ impl System {
         self.map_file().write(path)
     }
 
+    /// Tracks one colour frame of a monocular system (see
+    /// [`System::track_rgbd`]; there is no depth): the map starts once two
+    /// views reconstruct, frames before that come back NOT_INITIALISED.
+    pub fn track_monocular(
+        &mut self,
+        rgb: &[u8],
+        mask: Option<&[u8]>,
+        width: usize,
+        height: usize,
+        timestamp: f64,
+    ) -> FrameResult {
+        self.track_rgbd(rgb, &[], mask, width, height, timestamp)
+    }
+
     /// Tracks one RGB-D frame taken at `timestamp` (seconds). `rgb` is
     /// RGB8, `depth` u16 in `camera.depth_scale` units per metre (0: no
-    /// depth), `mask` an optional label image (non-zero: dynamic object).
+    /// depth; empty, or ignored, for a monocular system:
+    /// `SlamParams::sensor`), `mask` an optional label image (non-zero:
+    /// dynamic object).
     /// The pose returned is the camera's at the middle image row's
     /// exposure (with a rolling shutter, `camera.readout_s > 0`, the other
     /// rows' keypoints are moved to that instant). Never panics on odd input:
@@ -308,7 +327,7 @@ impl System {
         self.settle();
         let initialising = self.map.keyframes.is_empty();
         let mut tracked = if initialising {
-            self.initialise(&frame)
+            self.initialise(&frame, input.timestamp)
         } else {
             self.tracking.track(&mut self.map, &frame, input.timestamp)
         };
@@ -414,19 +433,49 @@ impl System {
         (frame, raw)
     }
 
-    /// The first keyframe from `frame` (not in localization mode: it adds
-    /// nothing, so an empty map stays empty).
-    fn initialise(&mut self, frame: &Frame) -> Tracked {
-        let started =
-            !self.localize_only && initialise_rgbd(&mut self.tracking, &mut self.map, frame);
-        Tracked {
-            state: if started {
-                TrackingState::Ok
-            } else {
-                TrackingState::NotInitialised
-            },
+    /// The map's start (not in localization mode: it adds nothing, so an
+    /// empty map stays empty). RGB-D: the first keyframe from `frame`.
+    /// Monocular: two keyframes, once `frame` and an earlier reference
+    /// view reconstruct; the reference's frame joins the trajectory at the
+    /// world's origin.
+    fn initialise(&mut self, frame: &Frame, timestamp: f64) -> Tracked {
+        let not_yet = Tracked {
+            state: TrackingState::NotInitialised,
             pose_cw: Isometry3::identity(),
-            inliers: if started { frame.kps.len() } else { 0 },
+            inliers: 0,
+            matched: Vec::new(),
+        };
+        if self.localize_only {
+            return not_yet;
+        }
+        if self.params.is_monocular() {
+            let Some(start) = self.monocular_start.try_start(
+                &mut self.tracking,
+                &mut self.map,
+                frame,
+                timestamp,
+                &self.camera,
+            ) else {
+                return not_yet;
+            };
+            self.tracked_frames
+                .push((start.reference_timestamp, 0, Isometry3::identity()));
+            // The reference keyframe (the second is counted as any).
+            self.keyframes_inserted += 1;
+            return Tracked {
+                state: TrackingState::Ok,
+                pose_cw: start.pose_cw,
+                inliers: start.inliers,
+                matched: start.matched,
+            };
+        }
+        if !initialise_rgbd(&mut self.tracking, &mut self.map, frame) {
+            return not_yet;
+        }
+        Tracked {
+            state: TrackingState::Ok,
+            pose_cw: Isometry3::identity(),
+            inliers: frame.kps.len(),
             matched: Vec::new(),
         }
     }

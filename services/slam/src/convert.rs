@@ -18,7 +18,11 @@ pub fn camera(c: &CameraConfig, depth_scale: f64) -> Camera {
 
 /// The core's parameters for a run's configuration.
 pub fn params(config: &PipelineConfig) -> SlamParams {
-    let mut params = SlamParams::default();
+    let mut params = if config.services.slam.is_monocular() {
+        SlamParams::monocular()
+    } else {
+        SlamParams::default()
+    };
     if let Some(t) = config.services.slam.threads {
         params.orb.threads = t.max(1);
     }

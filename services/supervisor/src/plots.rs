@@ -188,7 +188,7 @@ pub fn trajectory(
                     )
                 }))
                 .map_err(plot_err)?
-                .label("estimate (SE(3) aligned), colour: ATE")
+                .label("estimate (aligned), colour: ATE")
                 .legend(|(x, y)| {
                     PathElement::new(
                         vec![(x, y), (x + 20, y)],

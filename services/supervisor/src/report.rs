@@ -16,7 +16,7 @@ use image::{imageops, GrayImage, Rgb, RgbImage};
 use pipeline::config::PipelineConfig;
 use plotters::style::RGBColor;
 use serde::Serialize;
-use slam_core::eval::{evaluate, EvalOptions, EvalSummary};
+use slam_core::eval::{evaluate, Alignment, EvalOptions, EvalSummary};
 use slam_core::io::trajectory::Trajectory;
 
 use crate::latency::{self, StageSummary, STAGES};
@@ -29,7 +29,7 @@ pub const EVAL_FILE: &str = "eval.json";
 pub const PLOTS_DIR: &str = "plots";
 
 /// The world frame of the trajectories and the map, in words.
-pub const WORLD_FRAME: &str = "Poses (`trajectory.txt`, `frames.csv`) and `map.ply` are in the world frame of the SLAM map: the optical frame of the camera at the first tracked frame (x right, y down, z forward, metres), or the loaded map's (`--load-map`); a pose is camera-to-world. The accuracy figures align the estimate to the ground truth first (SE(3)).";
+pub const WORLD_FRAME: &str = "Poses (`trajectory.txt`, `frames.csv`) and `map.ply` are in the world frame of the SLAM map: the optical frame of the camera at the first tracked frame (x right, y down, z forward, metres), or the loaded map's (`--load-map`); a pose is camera-to-world. The accuracy figures align the estimate to the ground truth first (SE(3); Sim(3) for a monocular map).";
 
 /// A ground-truth person is scored where it covers at least this many
 /// pixels (as `dynslam masks-eval`'s default).
@@ -91,7 +91,14 @@ pub fn write(
     let latency = latency::summarize(rows);
 
     // Trajectory accuracy.
-    let eval = match trajectory_eval(run_dir, dataset, rows) {
+    let monocular =
+        config.services.slam.backend == "orb-rgbd" && config.services.slam.is_monocular();
+    let alignment = if monocular {
+        Alignment::Sim3
+    } else {
+        Alignment::Se3
+    };
+    let eval = match trajectory_eval(run_dir, dataset, rows, alignment) {
         Ok(e) => e,
         Err(e) => {
             notes.push(format!("trajectory evaluation: {e:#}"));
@@ -262,11 +269,12 @@ pub fn write(
     )?;
     writeln!(
         md,
-        "Frames: {}, tracked {} ({:.1} %); backends: SLAM `{}`, segmenter `{}`, propagator `{}`{}\n",
+        "Frames: {}, tracked {} ({:.1} %); backends: SLAM `{}`{}, segmenter `{}`, propagator `{}`{}\n",
         rows.len(),
         tracked,
         100.0 * tracked as f64 / rows.len().max(1) as f64,
         config.services.slam.backend,
+        if monocular { " (monocular: colour only)" } else { "" },
         config.services.segmenter.backend,
         config.services.propagator.backend,
         if config.routing.no_masks {
@@ -277,6 +285,9 @@ pub fn write(
     )?;
     writeln!(md, "## Trajectory\n")?;
     writeln!(md, "{WORLD_FRAME}\n")?;
+    if monocular {
+        writeln!(md, "Monocular: the map's unit is its own (the first keyframe's median scene depth is 1), so the accuracy figures align with a Sim(3) (rotation, translation and scale) and give the scale found.\n")?;
+    }
     let starts = crate::run_dir::slam_starts(run_dir);
     if config.services.slam.backend == "orb-rgbd" {
         let list = |from_checkpoint: bool| {
@@ -316,9 +327,13 @@ pub fn write(
             writeln!(md, "| poses compared | {} |", e.pairs)?;
             writeln!(
                 md,
-                "| ATE RMSE (SE(3) aligned) | {:.4} m |\n| ATE mean / median / max | {:.4} / {:.4} / {:.4} m |",
+                "| ATE RMSE ({} aligned) | {:.4} m |\n| ATE mean / median / max | {:.4} / {:.4} / {:.4} m |",
+                if monocular { "Sim(3)" } else { "SE(3)" },
                 e.ate_rmse_m, e.ate_mean_m, e.ate_median_m, e.ate_max_m
             )?;
+            if monocular {
+                writeln!(md, "| scale (metres per map unit) | {:.4} |", e.scale)?;
+            }
             writeln!(
                 md,
                 "| RPE per frame | {:.4} m, {:.3} deg |\n| RPE per {:.0} s | {:.4} m, {:.3} deg |\n",
@@ -334,7 +349,8 @@ pub fn write(
             writeln!(md, "![trajectory](plots/trajectory.png)\n")?;
             writeln!(
                 md,
-                "Ground truth (grey) and the SE(3)-aligned estimate (coloured by its position error, scale on the right), in the ground truth's frame; views {}, same scale on both axes; the red square is the start. Full figures in `{EVAL_FILE}`.\n",
+                "Ground truth (grey) and the {}-aligned estimate (coloured by its position error, scale on the right), in the ground truth's frame; views {}, same scale on both axes; the red square is the start, magenta rings mark loop closures. Full figures in `{EVAL_FILE}`.\n",
+                if monocular { "Sim(3)" } else { "SE(3)" },
                 views.map(|v| v.describe()).unwrap_or_default()
             )?;
             writeln!(md, "![ATE over time](plots/ate_over_time.png)\n")?;
@@ -508,6 +524,7 @@ fn trajectory_eval(
     run_dir: &Path,
     dataset: &Path,
     rows: &[FrameRow],
+    alignment: Alignment,
 ) -> Result<Option<EvalSummary>> {
     let gt_path = dataset.join("groundtruth.txt");
     if !gt_path.is_file() {
@@ -522,7 +539,11 @@ fn trajectory_eval(
         }
         Err(e) => return Err(e.into()),
     };
-    Ok(Some(evaluate(&gt, &est, EvalOptions::default())?))
+    let options = EvalOptions {
+        alignment,
+        ..Default::default()
+    };
+    Ok(Some(evaluate(&gt, &est, options)?))
 }
 
 type FrameIou = (u64, String, f64);

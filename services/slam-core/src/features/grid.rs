@@ -2,6 +2,7 @@
 //! frame (tracking's search by projection) or of a keyframe (fusion).
 
 /// Keypoints bucketed by undistorted position, for radius search.
+#[derive(Clone)]
 pub struct Grid {
     cell: f64,
     cols: usize,

@@ -9,6 +9,7 @@ use nalgebra::{Isometry3, Point3, Vector3};
 use crate::camera::Camera;
 use crate::map::Map;
 use crate::optimizer::local_ba::{bundle_adjust, BaObservation};
+use crate::params::Sensor;
 
 impl Map {
     /// Local bundle adjustment after a keyframe insertion: the newest
@@ -17,21 +18,32 @@ impl Map {
     /// fixed (and the first keyframe always is: it defines the world).
     /// Outlier observations are removed from their keyframe. False when
     /// there was nothing to adjust.
-    pub(super) fn local_bundle_adjustment(&mut self, camera: &Camera, keyframes: usize) -> bool {
+    pub(super) fn local_bundle_adjustment(
+        &mut self,
+        camera: &Camera,
+        keyframes: usize,
+        sensor: Sensor,
+    ) -> bool {
         let first_local = self.keyframes.len().saturating_sub(keyframes);
-        self.bundle_adjustment_from(camera, first_local)
+        self.bundle_adjustment_from(camera, first_local, sensor)
     }
 
-    /// Global bundle adjustment (ORB-SLAM2's after a loop correction):
-    /// every keyframe and point, the first keyframe held fixed (it defines
-    /// the world). False when there was nothing to adjust.
-    pub fn global_bundle_adjustment(&mut self, camera: &Camera) -> bool {
-        self.bundle_adjustment_from(camera, 0)
+    /// Global bundle adjustment (ORB-SLAM2's after a loop correction and
+    /// after monocular initialisation): every keyframe and point, the first
+    /// keyframe held fixed (it defines the world). False when there was
+    /// nothing to adjust.
+    pub fn global_bundle_adjustment(&mut self, camera: &Camera, sensor: Sensor) -> bool {
+        self.bundle_adjustment_from(camera, 0, sensor)
     }
 
     /// Bundle adjustment of keyframes `first_local..` and their points
     /// (see [`Map::local_bundle_adjustment`]).
-    fn bundle_adjustment_from(&mut self, camera: &Camera, first_local: usize) -> bool {
+    fn bundle_adjustment_from(
+        &mut self,
+        camera: &Camera,
+        first_local: usize,
+        sensor: Sensor,
+    ) -> bool {
         let mut point_slot: HashMap<usize, usize> = HashMap::new();
         let mut point_ids: Vec<usize> = Vec::new();
         for kf in &self.keyframes[first_local..] {
@@ -71,13 +83,16 @@ impl Map {
                 obs_at.push((kid, j));
             }
         }
-        // A point seen once constrains no pose, and one never measured
-        // with (close) depth has only parallax to fix its distance, which
-        // between neighbouring keyframes is too little: leave both out.
+        // A point seen once constrains no pose, and (RGB-D) one never
+        // measured with (close) depth has only parallax to fix its
+        // distance, which between neighbouring keyframes is too little
+        // next to the depth-measured ones: leave both out. Monocular points
+        // all have only parallax.
+        let monocular = sensor == Sensor::Monocular;
         let adjusted: Vec<bool> = seen_by
             .iter()
             .zip(&with_depth)
-            .map(|(&n, &d)| n >= 2 && d)
+            .map(|(&n, &d)| n >= 2 && (d || monocular))
             .collect();
         let keep: Vec<bool> = obs.iter().map(|o| adjusted[o.point]).collect();
         let (obs, obs_at): (Vec<_>, Vec<_>) = obs
@@ -232,7 +247,7 @@ mod tests {
             (kf, point)
         };
         let (kf_before, point_before) = errors(&map);
-        assert!(map.global_bundle_adjustment(&camera));
+        assert!(map.global_bundle_adjustment(&camera, Sensor::Rgbd));
         let (kf_after, point_after) = errors(&map);
         eprintln!(
             "keyframes {:.4} m / {:.3} deg -> {:.5} m / {:.4} deg, points {point_before:.3} -> {point_after:.5} m",

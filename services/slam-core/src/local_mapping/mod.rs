@@ -55,7 +55,8 @@ impl Map {
         let scale_factor = params.orb.scale_factor as f64;
         if params.triangulate {
             let neighbours = self.best_covisible(id, crate::map::MAPPING_NEIGHBOURS);
-            report.counts.triangulated = self.triangulate(id, &neighbours, camera, scale_factor);
+            report.counts.triangulated =
+                self.triangulate(id, &neighbours, camera, scale_factor, params.sensor);
         }
         if params.fuse_points {
             (report.counts.fused, report.counts.observations_added) =
@@ -63,7 +64,7 @@ impl Map {
         }
         self.connect(id);
         let ba = params.local_ba_keyframes;
-        report.adjusted = ba > 1 && self.local_bundle_adjustment(camera, ba);
+        report.adjusted = ba > 1 && self.local_bundle_adjustment(camera, ba, params.sensor);
         self.cull_keyframes(id, scale_factor);
         report.ms = t.elapsed().as_secs_f64() * 1e3;
         report

@@ -19,6 +19,7 @@ use crate::map::{KeyFrame, Map, MapPoint, SpareKeypoint};
 use crate::matcher::epipolar_matches;
 use crate::matcher::ray;
 use crate::optimizer::pose::chi2_threshold;
+use crate::params::Sensor;
 
 /// Rays closer than this (cosine of 1.15 degrees) fix depth too poorly.
 const MAX_PARALLAX_COS: f64 = 0.9998;
@@ -32,6 +33,7 @@ impl Map {
         neighbours: &[usize],
         camera: &Camera,
         scale_factor: f64,
+        sensor: Sensor,
     ) -> usize {
         // Which of keyframe id's spare keypoints got a point.
         let mut taken: Vec<Option<usize>> = vec![None; self.keyframes[id].spare.len()];
@@ -40,10 +42,16 @@ impl Map {
             if kf2.culled || n == id {
                 continue;
             }
-            // Below the depth camera's own (virtual) baseline, depth already
-            // says more than the pair could (ORB-SLAM2's stereo rule).
+            // RGB-D: below the depth camera's own (virtual) baseline, depth
+            // already says more than the pair could (ORB-SLAM2's stereo
+            // rule). Monocular: the baseline must be 1 % of the scene's
+            // median depth from the neighbour (ORB-SLAM2's).
             let baseline = (kf1.centre() - kf2.centre()).norm();
-            if baseline < camera.bf / camera.fx {
+            let too_short = match sensor {
+                Sensor::Rgbd => baseline < camera.bf / camera.fx,
+                Sensor::Monocular => self.median_depth(n).is_none_or(|d| baseline < 0.01 * d),
+            };
+            if too_short {
                 continue;
             }
             let mut taken2: Vec<Option<usize>> = vec![None; kf2.spare.len()];
@@ -71,6 +79,24 @@ impl Map {
         let made = taken.iter().flatten().count();
         self.keyframes[id].take_spare(&taken);
         made
+    }
+}
+
+impl Map {
+    /// The median depth of keyframe `k`'s points in its camera (None
+    /// without points).
+    pub fn median_depth(&self, k: usize) -> Option<f64> {
+        let kf = &self.keyframes[k];
+        let mut z: Vec<f64> = kf
+            .points
+            .iter()
+            .map(|&p| (kf.pose_cw * Point3::from(self.points[p].position)).z)
+            .collect();
+        if z.is_empty() {
+            return None;
+        }
+        let mid = z.len() / 2;
+        Some(*z.select_nth_unstable_by(mid, f64::total_cmp).1)
     }
 }
 
@@ -228,7 +254,7 @@ mod tests {
             ],
             ..Map::default()
         };
-        let made = map.triangulate(1, &[0], &camera, 1.2);
+        let made = map.triangulate(1, &[0], &camera, 1.2, Sensor::Rgbd);
         assert_eq!(made, world.len());
         for (p, kf) in map.points.iter().zip(&map.keyframes[1].points) {
             assert_eq!(p.observers, vec![1, 0]);
@@ -245,7 +271,7 @@ mod tests {
         assert!(map.keyframes.iter().all(|k| k.spare.is_empty()));
         assert!(map.keyframes.iter().all(|k| k.points.len() == world.len()));
         // Nothing is left to triangulate a second time.
-        assert_eq!(map.triangulate(1, &[0], &camera, 1.2), 0);
+        assert_eq!(map.triangulate(1, &[0], &camera, 1.2, Sensor::Rgbd), 0);
     }
 
     /// Too little baseline, or a keypoint off its epipolar line: no point.
@@ -261,11 +287,11 @@ mod tests {
             ],
             ..Map::default()
         };
-        assert_eq!(map.triangulate(1, &[0], &camera, 1.2), 0);
+        assert_eq!(map.triangulate(1, &[0], &camera, 1.2, Sensor::Rgbd), 0);
         map.keyframes[1] = keyframe(Isometry3::translation(-0.3, 0.0, 0.0), &camera, &world);
         // Moved 20 px across the epipolar line (horizontal here).
         map.keyframes[1].spare[0].measurement.v += 20.0;
-        assert_eq!(map.triangulate(1, &[0], &camera, 1.2), 1);
+        assert_eq!(map.triangulate(1, &[0], &camera, 1.2, Sensor::Rgbd), 1);
         assert_eq!(map.keyframes[1].spare.len(), 1);
     }
 }

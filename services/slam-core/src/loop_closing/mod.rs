@@ -180,7 +180,7 @@ impl LoopCloser {
         report.correct_ms = t.elapsed().as_secs_f64() * 1e3;
         if self.global_ba {
             let t = std::time::Instant::now();
-            corrected.global_bundle_adjustment(&self.camera);
+            corrected.global_bundle_adjustment(&self.camera, crate::params::Sensor::Rgbd);
             report.global_ba_ms = t.elapsed().as_secs_f64() * 1e3;
         }
         report.closed = Some(correction.closure);

@@ -363,7 +363,14 @@ impl Tracking {
         }
         let inliers = tracked.inliers;
         let long = self.keyframe_due();
-        let weak = (inliers as f64) < 0.75 * self.reference_inliers as f64
+        // ORB-SLAM2's thRefRatio: 0.75 with depth, 0.9 monocular (no close
+        // points to count: only the tracked share says the view changed).
+        let ratio = if self.params.is_monocular() {
+            0.9
+        } else {
+            0.75
+        };
+        let weak = (inliers as f64) < ratio * self.reference_inliers as f64
             || (close_tracked < 100 && close_untracked > 70);
         (long || weak) && inliers > 15
     }

@@ -5,7 +5,7 @@
 //!
 //! `slam-bench [DATASET] [--masks] [--skip N] [--limit N] [--threads N] [--local-ba N]
 //! [--readout S] [--inline-mapping] [--no-triangulation] [--fusion] [--loop-closing [--no-global-ba]]
-//! [--features N] [--extractor own|kornia]
+//! [--features N] [--monocular] [--extractor own|kornia]
 //! [--verbose] [--out trajectory.txt]`
 //! With more than one extraction thread it also measures extraction alone
 //! with 1 and N threads on the same frames and prints the ratio.
@@ -20,7 +20,7 @@ use pipeline::config::{CameraConfig, PipelineConfig};
 use pipeline::progress::Progress;
 use pipeline::stats::percentile;
 use slam::convert;
-use slam_core::eval::{evaluate_files, EvalOptions};
+use slam_core::eval::{evaluate_files, Alignment, EvalOptions};
 use slam_core::features::orb::{GrayU8, OrbBackend, OrbExtractor, OrbParams};
 use slam_core::io::trajectory::Trajectory;
 use slam_core::{MapFile, SlamParams, System};
@@ -88,6 +88,10 @@ struct Args {
     /// more).
     #[arg(long)]
     features: Option<usize>,
+    /// Monocular: colour only (the depth files are ignored); ATE after a
+    /// Sim(3) alignment, with the scale found.
+    #[arg(long)]
+    monocular: bool,
     /// Rolling-shutter readout in seconds (default: `camera.readout_s` of
     /// the config; 0 turns the correction off).
     #[arg(long)]
@@ -148,7 +152,11 @@ fn main() -> Result<()> {
         .or(cfg.services.slam.threads)
         .unwrap_or(SlamParams::default().orb.threads);
     anyhow::ensure!(threads >= 1, "--threads must be at least 1");
-    let mut params = SlamParams::default();
+    let mut params = if args.monocular {
+        SlamParams::monocular()
+    } else {
+        SlamParams::default()
+    };
     params.orb.threads = threads;
     params.orb.backend = orb_backend(&args.extractor)?;
     params.mapping_thread = !args.inline_mapping;
@@ -195,10 +203,16 @@ fn main() -> Result<()> {
         let rgb = image::open(&f.rgb)
             .with_context(|| f.rgb.display().to_string())?
             .to_rgb8();
-        let depth_path = f.depth.as_ref().context("frame without depth")?;
-        let depth = image::open(depth_path)
-            .with_context(|| depth_path.display().to_string())?
-            .into_luma16();
+        // Monocular: the depth files are not even read.
+        let depth: Vec<u16> = if args.monocular {
+            Vec::new()
+        } else {
+            let depth_path = f.depth.as_ref().context("frame without depth")?;
+            image::open(depth_path)
+                .with_context(|| depth_path.display().to_string())?
+                .into_luma16()
+                .into_raw()
+        };
         let mask = match &truth {
             Some(t) => Some(
                 t.load_at(f.timestamp)
@@ -208,14 +222,7 @@ fn main() -> Result<()> {
             None => None,
         };
         let (w, h) = (rgb.width() as usize, rgb.height() as usize);
-        let r = system.track_rgbd(
-            rgb.as_raw(),
-            depth.as_raw(),
-            mask.as_deref(),
-            w,
-            h,
-            f.timestamp,
-        );
+        let r = system.track_rgbd(rgb.as_raw(), &depth, mask.as_deref(), w, h, f.timestamp);
         if args.verbose {
             eprintln!(
                 "{:.3} {:?} feat {} inl {} kf {} pts {}",
@@ -336,10 +343,26 @@ fn main() -> Result<()> {
     }
     let gt = args.dataset.join("groundtruth.txt");
     if gt.is_file() {
-        let s = evaluate_files(&gt, &args.out, EvalOptions::default())?;
+        let options = EvalOptions {
+            alignment: if args.monocular {
+                Alignment::Sim3
+            } else {
+                Alignment::Se3
+            },
+            ..Default::default()
+        };
+        let s = evaluate_files(&gt, &args.out, options)?;
         println!(
-            "ATE rmse {:.4} m ({} pairs), RPE/frame {:.4} m {:.3} deg",
-            s.ate_rmse_m, s.pairs, s.rpe_trans_rmse_m, s.rpe_rot_rmse_deg
+            "ATE rmse {:.4} m ({} pairs{}), RPE/frame {:.4} m {:.3} deg",
+            s.ate_rmse_m,
+            s.pairs,
+            if args.monocular {
+                format!(", Sim(3) aligned, scale {:.4}", s.scale)
+            } else {
+                String::new()
+            },
+            s.rpe_trans_rmse_m,
+            s.rpe_rot_rmse_deg
         );
         if !system.loops().is_empty() {
             let c = evaluate_files(&gt, &corrected_out, EvalOptions::default())?;

@@ -485,7 +485,9 @@ impl PipelineConfig {
         Ok(config)
     }
 
-    fn validate(&self) -> Result<(), String> {
+    /// Checks every value for range and sense (the file's load does; call it
+    /// again after changing values, e.g. from command-line flags).
+    pub fn validate(&self) -> Result<(), String> {
         let r = &self.run;
         // 4096x4096 RGB-D frames are 80 MB per shared-memory slot already.
         for (key, v) in [

@@ -101,7 +101,7 @@ impl MonocularInitializer {
         ) {
             Ok(v) => v,
             Err(why) => {
-                tracing::debug!("monocular start not yet: {why:?}");
+                tracing::info!("monocular start refused with this frame: {why:?}");
                 return None;
             }
         };

@@ -73,6 +73,10 @@ enum Command {
         /// Route every frame unmasked (ablation).
         #[arg(long)]
         no_masks: bool,
+        /// The SLAM's sensor (default: `services.slam.sensor`): `rgbd` or
+        /// `monocular` (colour only; depth ignored).
+        #[arg(long, value_enum)]
+        sensor: Option<SensorArg>,
         /// Play at most this many frames.
         #[arg(long)]
         limit: Option<u64>,
@@ -250,6 +254,12 @@ enum VocabAction {
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum SensorArg {
+    Rgbd,
+    Monocular,
+}
+
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
 enum CameraPathArg {
     Glide,
     Circuit,
@@ -298,10 +308,20 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             output_dir,
             mode,
             no_masks,
+            sensor,
             limit,
             run_id,
         } => {
             let mut cfg = load_config(config.as_deref())?;
+            if let Some(s) = sensor {
+                cfg.services.slam.sensor = match s {
+                    SensorArg::Rgbd => "rgbd",
+                    SensorArg::Monocular => "monocular",
+                }
+                .into();
+                cfg.validate()
+                    .map_err(|e| anyhow::anyhow!("--sensor with the configuration: {e}"))?;
+            }
             let slam = &mut cfg.services.slam;
             slam.load_map = load_map.or(slam.load_map.take());
             slam.save_map = save_map.or(slam.save_map.take());
@@ -590,8 +610,13 @@ fn report_run(summary: &RunSummary) -> ExitCode {
     );
     if let Some(r) = &summary.report {
         if let Some(e) = &r.eval {
+            let aligned = match e.alignment {
+                slam_core::eval::Alignment::Sim3 => format!("Sim(3) aligned, scale {:.3}", e.scale),
+                slam_core::eval::Alignment::Se3 => "SE(3) aligned".into(),
+                slam_core::eval::Alignment::None => "not aligned".into(),
+            };
             eprintln!(
-                "ATE {:.4} m (RMSE, SE(3) aligned, {} poses), RPE/frame {:.4} m {:.3} deg",
+                "ATE {:.4} m (RMSE, {aligned}, {} poses), RPE/frame {:.4} m {:.3} deg",
                 e.ate_rmse_m, e.pairs, e.rpe_trans_rmse_m, e.rpe_rot_rmse_deg
             );
         }

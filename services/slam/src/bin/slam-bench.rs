@@ -244,8 +244,12 @@ fn main() -> Result<()> {
             tracked += 1;
         }
         relocalised += (r.state == slam_core::TrackingState::Relocalised) as usize;
-        trajectory.stamps.push(f.timestamp);
-        trajectory.poses.push(r.pose_wc);
+        // Tracked frames only (as the pipeline's trajectory.txt): an
+        // untracked frame's pose is a guess.
+        if r.state.is_tracked() {
+            trajectory.stamps.push(f.timestamp);
+            trajectory.poses.push(r.pose_wc);
+        }
         progress.inc();
     }
     progress.finish();

@@ -120,10 +120,11 @@ fn people_are_masked_out_of_a_monocular_map() {
     );
 }
 
-/// The whole pipeline with `services.slam.sensor = "monocular"` (mask
-/// workers off: nothing moves in the room): on the TUM folder the depth is
-/// ignored and the report aligns with a Sim(3) and gives the scale; on a
-/// plain image folder (no depth, no ground truth) it tracks too.
+/// The whole pipeline monocular (mask workers off: nothing moves in the
+/// room): on the TUM folder with `--sensor monocular` the depth is ignored
+/// and the report aligns with a Sim(3) and gives the scale; on a plain
+/// image folder (no depth, no ground truth) with
+/// `services.slam.sensor = "monocular"` it tracks too.
 #[test]
 fn the_pipeline_runs_monocular_on_a_tum_folder_and_on_an_image_folder() {
     let (room, _) = rendered();
@@ -164,6 +165,7 @@ fn the_pipeline_runs_monocular_on_a_tum_folder_and_on_an_image_folder() {
     for path in &frames[..60] {
         std::fs::copy(path, images.join(path.file_name().unwrap())).unwrap();
     }
+    let mono = format!("{NO_MASK_MODELS}[services.slam]\nsensor = \"monocular\"\n");
     let config = write_config(&dir, &format!("[source]\nkind = \"images\"\n{mono}"));
     let r = run(
         &images,

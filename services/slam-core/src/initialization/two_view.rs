@@ -633,12 +633,10 @@ mod tests {
         );
     }
 
-    /// A general scene (points at 2-6 m scattered in depth): the
-    /// fundamental matrix explains it, and the motion and points come back.
-    #[test]
-    fn a_general_scene_is_reconstructed_from_the_fundamental_matrix() {
-        let mut rng = SplitMix64::new(3);
-        let truth: Vec<Vector3<f64>> = (0..300)
+    /// 300 points at 2-6 m scattered in depth, in the view of camera 1.
+    fn general_scene(seed: u64) -> Vec<Vector3<f64>> {
+        let mut rng = SplitMix64::new(seed);
+        (0..300)
             .map(|_| {
                 let z = rng.uniform(2.0, 6.0);
                 Vector3::new(
@@ -647,10 +645,22 @@ mod tests {
                     z,
                 )
             })
-            .collect();
+            .collect()
+    }
+
+    /// Point i of view 1 matched to point i of view 2.
+    fn same_indices(n: usize) -> Vec<(usize, usize)> {
+        (0..n).map(|i| (i, i)).collect()
+    }
+
+    /// A general scene (points at 2-6 m scattered in depth): the
+    /// fundamental matrix explains it, and the motion and points come back.
+    #[test]
+    fn a_general_scene_is_reconstructed_from_the_fundamental_matrix() {
+        let truth = general_scene(3);
         let (r, t) = motion();
         let (a, b) = views(&truth, &r, &t, 0.5, 9);
-        let matches: Vec<(usize, usize)> = (0..truth.len()).map(|i| (i, i)).collect();
+        let matches = same_indices(truth.len());
         let result = reconstruct(&k(), &a, &b, &matches, &TwoViewParams::default()).unwrap();
         assert_eq!(
             result.model,
@@ -673,7 +683,7 @@ mod tests {
             .collect();
         let (r, t) = motion();
         let (a, b) = views(&truth, &r, &t, 0.5, 10);
-        let matches: Vec<(usize, usize)> = (0..truth.len()).map(|i| (i, i)).collect();
+        let matches = same_indices(truth.len());
         let result = reconstruct(&k(), &a, &b, &matches, &TwoViewParams::default()).unwrap();
         assert_eq!(
             result.model,
@@ -688,23 +698,14 @@ mod tests {
     /// rotation (no parallax) and too few matches are refused.
     #[test]
     fn outliers_are_survived_and_degenerate_views_refused() {
+        let truth = general_scene(5);
         let mut rng = SplitMix64::new(5);
-        let truth: Vec<Vector3<f64>> = (0..300)
-            .map(|_| {
-                let z = rng.uniform(2.0, 6.0);
-                Vector3::new(
-                    rng.uniform(-0.55, 0.55) * z,
-                    rng.uniform(-0.45, 0.45) * z,
-                    z,
-                )
-            })
-            .collect();
         let (r, t) = motion();
         let (a, mut b) = views(&truth, &r, &t, 0.5, 11);
         for bi in b.iter_mut().step_by(5) {
             *bi = (rng.uniform(0.0, 640.0), rng.uniform(0.0, 480.0));
         }
-        let matches: Vec<(usize, usize)> = (0..truth.len()).map(|i| (i, i)).collect();
+        let matches = same_indices(truth.len());
         let result = reconstruct(&k(), &a, &b, &matches, &TwoViewParams::default()).unwrap();
         let angle = Rotation3::from_matrix(&(result.rotation.transpose() * r)).angle();
         assert!(angle.to_degrees() < 0.3);

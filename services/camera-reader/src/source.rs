@@ -40,6 +40,9 @@ pub struct TimedList {
     pub entries: Vec<(f64, PathBuf)>,
 }
 
+/// Timestamps are seconds below this (see [`parse_timed_list`]).
+const MAX_TIMESTAMP_S: f64 = 1e10;
+
 /// Parses a TUM `timestamp path` list. Paths are relative to `base`.
 pub fn parse_timed_list(
     text: &str,
@@ -72,6 +75,16 @@ pub fn parse_timed_list(
             .ok()
             .filter(|t: &f64| t.is_finite() && *t >= 0.0)
             .ok_or_else(|| bad(format!("'{ts}' is not a valid timestamp")))?;
+        // Seconds since 1970 stay below 1e10 until the year 2286; above it
+        // the list is in another unit, and f64 seconds that large lose the
+        // sub-millisecond steps between frames (real time would play them
+        // at once or hours apart).
+        if timestamp >= MAX_TIMESTAMP_S {
+            return Err(bad(format!(
+                "timestamp {ts} is not in seconds (>= 1e10 s, after the year 2286: nanoseconds or \
+                 microseconds? TUM lists give seconds, e.g. 1305031102.175304)"
+            )));
+        }
         if let Some((prev, _)) = entries.last() {
             if timestamp <= *prev {
                 return Err(bad(format!(
@@ -304,6 +317,13 @@ mod tests {
         );
         let err = list("1.0 a.png extra\n").unwrap_err();
         assert!(err.to_string().contains("line 1"), "{err}");
+        // Nanoseconds (a ROS bag export) are refused, seconds of today pass.
+        let err = list("1.0 a.png\n1305031102175304000 b.png\n").unwrap_err();
+        assert!(
+            err.to_string().contains("line 2") && err.to_string().contains("not in seconds"),
+            "{err}"
+        );
+        list("1305031102.175304 a.png\n").unwrap();
     }
 
     #[test]

@@ -2,7 +2,8 @@
 //! poses, keypoint measurements, descriptors, depth and spare keypoints;
 //! map points with position, descriptor, observers, scale range; the
 //! covisibility graph, spanning tree and loop edges; the keyframe database;
-//! the camera; the pyramid and depth settings the map was made with).
+//! the camera; the sensor, pyramid and depth settings the map was made
+//! with).
 //!
 //! Layout: the magic `DSLAMMAP` and the framing of [`crate::io::framed`]
 //! (version, length, CRC-32), then the payload: the
@@ -24,7 +25,8 @@ use crate::params::SlamParams;
 pub const MAGIC: &[u8; 8] = b"DSLAMMAP";
 /// Bumped whenever the payload's layout changes; older files are refused
 /// with both versions named (no silent misreading).
-pub const VERSION: u32 = 2;
+/// (v2: the keyframe database; v3: the sensor.)
+pub const VERSION: u32 = 3;
 
 /// A temporary name beside `path`, unique per process and write (two
 /// writers of one file never share a temporary).
@@ -48,6 +50,8 @@ pub struct MapFile {
     pub min_depth_m: f64,
     pub max_depth_m: f64,
     pub close_depth_m: f64,
+    /// Made by a monocular system: its unit is its own, not metres.
+    pub monocular: bool,
     pub map: Map,
 }
 
@@ -74,6 +78,8 @@ pub enum MapFileProblem {
     Camera(String),
     #[error("made with another ORB pyramid: {0}")]
     Pyramid(String),
+    #[error("made with another sensor: {0}")]
+    Sensor(String),
 }
 
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -92,6 +98,7 @@ impl MapFile {
             min_depth_m: params.min_depth_m,
             max_depth_m: params.max_depth_m,
             close_depth_m: params.close_depth_m,
+            monocular: params.is_monocular(),
             map,
         }
     }
@@ -199,8 +206,9 @@ impl MapFile {
     }
 
     /// The map can be tracked in with `camera` and `params`: the same
-    /// intrinsics, distortion and depth scale (to 1e-6 relative) and the
-    /// same ORB pyramid.
+    /// intrinsics, distortion and depth scale (to 1e-6 relative), the same
+    /// ORB pyramid and the same sensor (a monocular map's unit is not the
+    /// metre an RGB-D system measures in, and the other way round).
     pub fn check_compatible(
         &self,
         camera: &Camera,
@@ -237,6 +245,14 @@ impl MapFile {
                 self.pyramid_scale_factor,
                 params.orb.levels,
                 params.orb.scale_factor
+            )));
+        }
+        if self.monocular != params.is_monocular() {
+            let name = |mono: bool| if mono { "monocular" } else { "rgbd" };
+            return Err(MapFileProblem::Sensor(format!(
+                "{} in the map, {} in this run (services.slam.sensor)",
+                name(self.monocular),
+                name(params.is_monocular())
             )));
         }
         Ok(())
@@ -360,7 +376,7 @@ mod tests {
     }
 
     #[test]
-    fn another_camera_or_pyramid_is_refused() {
+    fn another_camera_pyramid_or_sensor_is_refused() {
         let f = file();
         let mut camera = Camera::tum_fr1();
         camera.fx = 525.0;
@@ -384,6 +400,14 @@ mod tests {
             f.check_compatible(&Camera::tum_fr1(), &params),
             Err(MapFileProblem::Pyramid(_))
         ));
+        let e = f
+            .check_compatible(&Camera::tum_fr1(), &SlamParams::monocular())
+            .unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("rgbd in the map, monocular in this run (services.slam.sensor)"),
+            "{e}"
+        );
     }
 
     /// Cheap fuzzing: random bytes, and a valid file with random bytes

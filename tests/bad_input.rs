@@ -285,7 +285,7 @@ fn slam_that_exits_at_start_fails_the_run_with_its_name() {
 
 /// Map files a user can give are checked before any process starts: a
 /// file that is no map, a missing one, localization without a map, a map
-/// for a SLAM that keeps none, a map made with another camera. Each error
+/// for a SLAM that keeps none, a map made with another camera or sensor. Each error
 /// names the file or flag and the problem, and no run folder is made.
 #[test]
 fn bad_map_files_and_flags_are_refused_before_start() {
@@ -293,9 +293,10 @@ fn bad_map_files_and_flags_are_refused_before_start() {
     let tum = small_tum(&dir, 3);
     let config = write_config(&dir, "");
     let garbage = dir.join("garbage.map");
+    // The current format version (3), then nonsense.
     std::fs::write(
         &garbage,
-        b"DSLAMMAP\x02\x00\x00\x00 but then nothing sensible",
+        b"DSLAMMAP\x03\x00\x00\x00 but then nothing sensible",
     )
     .unwrap();
     let ply = dir.join("points.ply");
@@ -351,6 +352,14 @@ fn bad_map_files_and_flags_are_refused_before_start() {
             vec![
                 "made with another camera".into(),
                 "fx is 517.306408 in the map".into(),
+            ],
+        ),
+        (
+            vec!["--load-map", map.to_str().unwrap(), "--sensor", "monocular"],
+            "",
+            vec![
+                "made with another sensor".into(),
+                "rgbd in the map, monocular in this run".into(),
             ],
         ),
     ];

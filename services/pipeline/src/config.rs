@@ -424,10 +424,12 @@ impl ServiceConfig {
 /// A configuration error that names the file, the key path and the problem.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
-    #[error("cannot read config file {path}: {source}")]
+    // The OS error is part of the message, not a `source`: error chains
+    // printed with their causes would say it twice.
+    #[error("cannot read config file {path}: {error}")]
     Read {
         path: PathBuf,
-        source: std::io::Error,
+        error: std::io::Error,
     },
     #[error("config file {path}: {message}")]
     Invalid { path: PathBuf, message: String },
@@ -436,9 +438,9 @@ pub enum ConfigError {
 impl PipelineConfig {
     /// Reads and validates a configuration file.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+        let text = std::fs::read_to_string(path).map_err(|error| ConfigError::Read {
             path: path.to_path_buf(),
-            source,
+            error,
         })?;
         // A UTF-8 byte-order mark (Windows editors) is not part of the TOML.
         Self::parse(text.trim_start_matches('\u{feff}')).map_err(|message| ConfigError::Invalid {
@@ -803,6 +805,18 @@ mod tests {
         )
         .unwrap();
         assert!(mono.services.slam.is_monocular());
+    }
+
+    #[test]
+    fn a_missing_config_file_is_named_with_its_os_error_once() {
+        let e = PipelineConfig::load(Path::new("/nonexistent/pipeline.toml")).unwrap_err();
+        let text = format!("{e}");
+        assert!(
+            text.starts_with("cannot read config file /nonexistent/pipeline.toml: "),
+            "{text}"
+        );
+        assert_eq!(text.matches("os error").count(), 1, "{text}");
+        assert!(std::error::Error::source(&e).is_none());
     }
 
     #[test]

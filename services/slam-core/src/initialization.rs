@@ -106,14 +106,13 @@ impl MonocularInitializer {
             }
         };
         let reference_timestamp = *reference_timestamp;
-        let started =
-            build_two_view_map(tracking, map, reference, frame, &matches, &two_view, camera);
-        if started.is_none() {
+        let Some((pose_cw, matched, inliers)) =
+            build_two_view_map(tracking, map, reference, frame, &matches, &two_view, camera)
+        else {
             *map = Map::default();
             self.reference = None;
             return None;
-        }
-        let (pose_cw, matched, inliers) = started?;
+        };
         tracing::info!(
             "monocular map started from two views ({:?}, parallax {:.1} deg): {inliers} points",
             two_view.model,

@@ -12,7 +12,7 @@
 //! Pixels are undistorted; the motion is camera 2 from camera 1
 //! (`x2 = R x1 + t`, `|t| = 1`), the points in camera 1's frame.
 
-use nalgebra::{DMatrix, Matrix3, Matrix3x4, Vector3, Vector4};
+use nalgebra::{DMatrix, DVector, Matrix3, Matrix3x4, Vector3, Vector4};
 
 use crate::rng::SplitMix64;
 
@@ -235,8 +235,15 @@ fn normalise(points: &[(f64, f64)]) -> (Vec<(f64, f64)>, Matrix3<f64>) {
 /// The unit-norm null vector of `a` (its right singular vector of the
 /// smallest singular value), as a 3x3 matrix row by row.
 fn null_space_3x3(a: DMatrix<f64>) -> Option<Matrix3<f64>> {
-    // AᵀA is 9x9 and symmetric: its eigenvector of the smallest eigenvalue
-    // is the null vector (the rows may be fewer than 9).
+    let v = null_vector(a)?;
+    let m = Matrix3::from_row_slice(v.as_slice());
+    m.iter().all(|x| x.is_finite()).then_some(m)
+}
+
+/// The unit null vector of `a` (least squares): the eigenvector of the
+/// symmetric AᵀA with the smallest eigenvalue (works with fewer rows than
+/// columns too).
+fn null_vector(a: DMatrix<f64>) -> Option<DVector<f64>> {
     let ata = a.transpose() * &a;
     let eig = nalgebra::SymmetricEigen::new(ata);
     let (i, _) = eig
@@ -244,9 +251,7 @@ fn null_space_3x3(a: DMatrix<f64>) -> Option<Matrix3<f64>> {
         .iter()
         .enumerate()
         .min_by(|a, b| a.1.total_cmp(b.1))?;
-    let v = eig.eigenvectors.column(i);
-    let m = Matrix3::from_row_slice(v.as_slice());
-    m.iter().all(|x| x.is_finite()).then_some(m)
+    Some(eig.eigenvectors.column(i).into_owned())
 }
 
 /// Homography from `a` to `b` by the direct linear transform.
@@ -292,8 +297,38 @@ fn transfer(h: &Matrix3<f64>, (u, v): (f64, f64)) -> Option<(f64, f64)> {
     (p.z.abs() > 1e-12).then(|| (p.x / p.z, p.y / p.z))
 }
 
-/// ORB-SLAM2's CheckHomography: both transfer errors must pass the
-/// two-degree gate; each adds (gate - error) to the score.
+/// Scores a model on every match: `errors` gives its two squared errors
+/// (image 1, image 2, in sigmas); a match is an inlier when both pass
+/// `gate`, and adds (two-degree gate - error) for each to the score, so
+/// that the homography's and the fundamental matrix's scores compare.
+fn score_matches(
+    matrix: &Matrix3<f64>,
+    x1: &[(f64, f64)],
+    x2: &[(f64, f64)],
+    gate: f64,
+    errors: impl Fn((f64, f64), (f64, f64)) -> (f64, f64),
+) -> Scored {
+    let mut score = 0.0;
+    let inliers = x1
+        .iter()
+        .zip(x2)
+        .map(|(&a, &b)| {
+            let (e1, e2) = errors(a, b);
+            let inlier = e1 <= gate && e2 <= gate;
+            if inlier {
+                score += (CHI2_2DOF - e1) + (CHI2_2DOF - e2);
+            }
+            inlier
+        })
+        .collect();
+    Scored {
+        matrix: *matrix,
+        score,
+        inliers,
+    }
+}
+
+/// ORB-SLAM2's CheckHomography: both transfer errors, two-degree gate.
 fn score_homography(
     h21: &Matrix3<f64>,
     h12: &Matrix3<f64>,
@@ -301,68 +336,39 @@ fn score_homography(
     x2: &[(f64, f64)],
     inv_sigma2: f64,
 ) -> Scored {
-    let mut score = 0.0;
-    let inliers = x1
-        .iter()
-        .zip(x2)
-        .map(|(&a, &b)| {
-            let error = |h: &Matrix3<f64>, from: (f64, f64), to: (f64, f64)| {
-                transfer(h, from)
-                    .map(|p| ((p.0 - to.0).powi(2) + (p.1 - to.1).powi(2)) * inv_sigma2)
-                    .unwrap_or(f64::INFINITY)
-            };
-            let (e1, e2) = (error(h12, b, a), error(h21, a, b));
-            if e1 > CHI2_2DOF || e2 > CHI2_2DOF {
-                return false;
-            }
-            score += (CHI2_2DOF - e1) + (CHI2_2DOF - e2);
-            true
-        })
-        .collect();
-    Scored {
-        matrix: *h21,
-        score,
-        inliers,
-    }
+    let error = |h: &Matrix3<f64>, from: (f64, f64), to: (f64, f64)| {
+        transfer(h, from)
+            .map(|p| ((p.0 - to.0).powi(2) + (p.1 - to.1).powi(2)) * inv_sigma2)
+            .unwrap_or(f64::INFINITY)
+    };
+    score_matches(h21, x1, x2, CHI2_2DOF, |a, b| {
+        (error(h12, b, a), error(h21, a, b))
+    })
 }
 
 /// ORB-SLAM2's CheckFundamental: distances to the epipolar lines in both
-/// images pass the one-degree gate; each adds (two-degree gate - error) to
-/// the score, so that the two models' scores compare.
+/// images, one-degree gate.
 fn score_fundamental(
     f21: &Matrix3<f64>,
     x1: &[(f64, f64)],
     x2: &[(f64, f64)],
     inv_sigma2: f64,
 ) -> Scored {
-    let mut score = 0.0;
-    let inliers = x1
-        .iter()
-        .zip(x2)
-        .map(|(&(u1, v1), &(u2, v2))| {
-            let (a1, a2) = (Vector3::new(u1, v1, 1.0), Vector3::new(u2, v2, 1.0));
-            let line_distance = |l: Vector3<f64>, p: &Vector3<f64>| {
-                let d2 = l.x * l.x + l.y * l.y;
-                if d2 < 1e-24 {
-                    f64::INFINITY
-                } else {
-                    l.dot(p).powi(2) / d2 * inv_sigma2
-                }
-            };
-            let e2 = line_distance(f21 * a1, &a2);
-            let e1 = line_distance(f21.transpose() * a2, &a1);
-            if e1 > CHI2_1DOF || e2 > CHI2_1DOF {
-                return false;
-            }
-            score += (CHI2_2DOF - e1) + (CHI2_2DOF - e2);
-            true
-        })
-        .collect();
-    Scored {
-        matrix: *f21,
-        score,
-        inliers,
-    }
+    let line_distance = |l: Vector3<f64>, p: &Vector3<f64>| {
+        let d2 = l.x * l.x + l.y * l.y;
+        if d2 < 1e-24 {
+            f64::INFINITY
+        } else {
+            l.dot(p).powi(2) / d2 * inv_sigma2
+        }
+    };
+    score_matches(f21, x1, x2, CHI2_1DOF, |(u1, v1), (u2, v2)| {
+        let (a1, a2) = (Vector3::new(u1, v1, 1.0), Vector3::new(u2, v2, 1.0));
+        (
+            line_distance(f21.transpose() * a2, &a1),
+            line_distance(f21 * a1, &a2),
+        )
+    })
 }
 
 /// The four motions of an essential matrix: R in {U W Vᵀ, U Wᵀ Vᵀ}, t = ±u3.
@@ -459,14 +465,7 @@ pub fn triangulate(
     a.row_mut(1).copy_from(&(p1.row(2) * v1 - p1.row(1)));
     a.row_mut(2).copy_from(&(p2.row(2) * u2 - p2.row(0)));
     a.row_mut(3).copy_from(&(p2.row(2) * v2 - p2.row(1)));
-    let ata = a.transpose() * &a;
-    let eig = nalgebra::SymmetricEigen::new(ata);
-    let (i, _) = eig
-        .eigenvalues
-        .iter()
-        .enumerate()
-        .min_by(|a, b| a.1.total_cmp(b.1))?;
-    let c = eig.eigenvectors.column(i);
+    let c = null_vector(a)?;
     let x = Vector4::new(c[0], c[1], c[2], c[3]);
     (x.w.abs() > 1e-12)
         .then(|| Vector3::new(x.x / x.w, x.y / x.w, x.z / x.w))

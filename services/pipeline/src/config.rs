@@ -592,14 +592,6 @@ impl PipelineConfig {
                 slam.sensor
             ));
         }
-        if slam.is_monocular() && slam.loop_closing {
-            return Err(
-                "key `services.slam.loop_closing`: loop closing corrects an SE(3) (RGB-D); \
-                 a monocular map drifts in scale too and needs a Sim(3) correction, not built yet: \
-                 turn one of them off"
-                    .into(),
-            );
-        }
         if let Some(n) = slam.checkpoint_every_keyframes.filter(|&n| n > 100_000) {
             return Err(format!(
                 "key `services.slam.checkpoint_every_keyframes`: {n} is not a keyframe count (0 = only at stop ..= 100000)"
@@ -820,7 +812,7 @@ mod tests {
     }
 
     #[test]
-    fn a_bad_sensor_and_monocular_loop_closing_are_errors_naming_the_key() {
+    fn a_bad_sensor_is_an_error_naming_the_key_and_monocular_closes_loops() {
         let err = PipelineConfig::parse("[services.slam]\nsensor = \"stereo\"\n").unwrap_err();
         assert!(
             err.contains("services.slam.sensor")
@@ -828,13 +820,11 @@ mod tests {
                 && err.contains("line 2"),
             "{err}"
         );
-        let err =
+        // Monocular loop closing corrects a similarity (Sim(3)).
+        let c =
             PipelineConfig::parse("[services.slam]\nsensor = \"monocular\"\nloop_closing = true\n")
-                .unwrap_err();
-        assert!(
-            err.contains("services.slam.loop_closing") && err.contains("Sim(3)"),
-            "{err}"
-        );
+                .unwrap();
+        assert!(c.services.slam.is_monocular() && c.services.slam.loop_closing);
     }
 
     #[test]

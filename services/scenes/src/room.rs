@@ -46,6 +46,11 @@ pub enum CameraPath {
     /// pose at the end (a loop for loop closing; the start leaves the local
     /// map long before the camera returns to it).
     Circuit,
+    /// A closed orbit: round an ellipse about the middle of the room,
+    /// looking in across it (the sideways motion gives a monocular camera
+    /// parallax all the way round; looking out, as on the circuit, it sees
+    /// a near wall turn past it), back to the first pose at the end.
+    Orbit,
 }
 
 impl Default for RoomOptions {
@@ -102,6 +107,15 @@ pub fn default_walks() -> WalkOptions {
     }
 }
 
+/// The camera's orientation looking along `forward` (unit), upright: its x
+/// axis level, its y axis (image down) towards the floor.
+fn looking_along(forward: &Vector3<f64>) -> UnitQuaternion<f64> {
+    let right = Vector3::y().cross(forward).normalize();
+    let down = forward.cross(&right);
+    let look = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[right, down, *forward]));
+    UnitQuaternion::from_rotation_matrix(&look)
+}
+
 /// World from camera at time `t` of a `duration` long sequence: a slow
 /// sideways-and-forward glide (about 0.3 m/s) while looking across the
 /// room, with a little bob and roll, as a hand-held camera.
@@ -139,13 +153,24 @@ pub fn circuit_pose(t: f64, duration: f64) -> Isometry3<f64> {
     // Looking out: away from the ellipse's centre, a little ahead of it.
     let heading = a + 0.3;
     let forward = Vector3::new(heading.sin(), 0.08, -heading.cos()).normalize();
-    let right = Vector3::y().cross(&forward).normalize();
-    let down = forward.cross(&right);
-    let look = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[right, down, forward]));
-    Isometry3::from_parts(
-        Translation3::from(position),
-        UnitQuaternion::from_rotation_matrix(&look),
-    )
+    Isometry3::from_parts(Translation3::from(position), looking_along(&forward))
+}
+
+/// World from camera at time `t` of a `duration` long orbit: once round
+/// an ellipse (0.9 x 0.8 m) about the middle of the room at 1.15 m over the
+/// floor, above the two low boxes, looking in at a point a little below
+/// the eye, across the room at the far side's walls, floor and boxes; the
+/// last pose is the first.
+pub fn orbit_pose(t: f64, duration: f64) -> Isometry3<f64> {
+    let a = std::f64::consts::TAU * (t / duration);
+    let centre = Vector3::new(0.0, 0.3, 1.6);
+    let position = Vector3::new(
+        -0.9 * a.sin(),
+        -0.05 + 0.03 * (3.0 * a).sin(),
+        centre.z - 0.8 * a.cos(),
+    );
+    let forward = (centre - position).normalize();
+    Isometry3::from_parts(Translation3::from(position), looking_along(&forward))
 }
 
 impl CameraPath {
@@ -154,6 +179,7 @@ impl CameraPath {
         match self {
             CameraPath::Glide => camera_pose(t, duration),
             CameraPath::Circuit => circuit_pose(t, duration),
+            CameraPath::Orbit => orbit_pose(t, duration),
         }
     }
 }
@@ -529,12 +555,18 @@ mod tests {
 
     #[test]
     fn camera_paths_stay_inside_the_room_and_move_smoothly() {
-        for (path, duration) in [(CameraPath::Glide, 5.0), (CameraPath::Circuit, 20.0)] {
+        for (path, duration) in [
+            (CameraPath::Glide, 5.0),
+            (CameraPath::Circuit, 20.0),
+            (CameraPath::Orbit, 20.0),
+        ] {
             path_is_smooth(path, duration);
         }
-        let (start, end) = (circuit_pose(0.0, 20.0), circuit_pose(20.0, 20.0));
-        let back = start.inverse() * end;
-        assert!(back.translation.vector.norm() < 1e-9 && back.rotation.angle() < 1e-9);
+        for closed in [CameraPath::Circuit, CameraPath::Orbit] {
+            let (start, end) = (closed.pose(0.0, 20.0), closed.pose(20.0, 20.0));
+            let back = start.inverse() * end;
+            assert!(back.translation.vector.norm() < 1e-9 && back.rotation.angle() < 1e-9);
+        }
     }
 
     fn path_is_smooth(path: CameraPath, duration: f64) {

@@ -93,6 +93,9 @@ pub struct ProjectionSearch {
     pub radius: f64,
     /// Points nearer than this (metres) are not searched.
     pub min_depth_m: f64,
+    /// A keypoint's descriptor distance must be at most this share of the
+    /// second-best keypoint's in the window (1: the best wins).
+    pub ratio: f64,
     /// Count each point that lands in the image as seen (`visible`), for
     /// recent-point culling: done on the final pass only.
     pub count_visible: bool,
@@ -100,7 +103,8 @@ pub struct ProjectionSearch {
 
 /// For each keypoint of `frame`, the best of the map points `candidates`
 /// projecting within the search radius with a descriptor distance below
-/// the threshold (each map point used once, the closer descriptor wins).
+/// the threshold and clearly below the second-best keypoint's
+/// (`search.ratio`) (each map point used once, the closer descriptor wins).
 pub fn match_by_projection(
     map: &mut Map,
     frame: &Frame,
@@ -130,6 +134,7 @@ pub fn match_by_projection(
             map.points[p].visible += 1;
         }
         let mut cand: Option<(usize, u32)> = None;
+        let mut second = u32::MAX;
         for &k in &near {
             let (ku, kv) = frame.un[k];
             let r = search.radius * frame.scale(k).min(2.0);
@@ -137,10 +142,17 @@ pub fn match_by_projection(
                 continue;
             }
             let d = hamming(&map.points[p].descriptor, &frame.descs[k]);
-            if d <= MATCH_MAX_DISTANCE && cand.is_none_or(|c| d < c.1) {
+            if cand.is_none_or(|c| d < c.1) {
+                if let Some(c) = cand {
+                    second = second.min(c.1);
+                }
                 cand = Some((k, d));
+            } else {
+                second = second.min(d);
             }
         }
+        let cand = cand
+            .filter(|c| c.1 <= MATCH_MAX_DISTANCE && (c.1 as f64) <= search.ratio * second as f64);
         if let Some((k, d)) = cand {
             if best[k].is_none_or(|b| d < b.1) {
                 best[k] = Some((p, d));

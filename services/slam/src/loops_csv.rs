@@ -7,7 +7,7 @@ use std::path::Path;
 use slam_core::loop_closing::LoopClosure;
 
 pub const HEADER: &str =
-    "timestamp,keyframe,matched_keyframe,inliers,confirmed,correction_m,correction_deg,fused_points,keyframes_moved";
+    "timestamp,keyframe,matched_keyframe,inliers,confirmed,correction_m,correction_deg,fused_points,keyframes_moved,scale";
 
 /// Appends `loops` ((timestamp of the keyframe's frame, closure)) to the CSV
 /// at `path`, writing the header first if the file is new or empty.
@@ -23,7 +23,7 @@ pub fn append(path: &Path, loops: &[(f64, LoopClosure)]) -> std::io::Result<()> 
     }
     for (t, l) in loops {
         text.push_str(&format!(
-            "{t:.6},{},{},{},{},{:.4},{:.3},{},{}\n",
+            "{t:.6},{},{},{},{},{:.4},{:.3},{},{},{:.4}\n",
             l.keyframe,
             l.matched,
             l.inliers,
@@ -31,7 +31,8 @@ pub fn append(path: &Path, loops: &[(f64, LoopClosure)]) -> std::io::Result<()> 
             l.correction_m,
             l.correction_deg,
             l.fused,
-            l.keyframes_moved
+            l.keyframes_moved,
+            l.scale
         ));
     }
     f.write_all(text.as_bytes())?;
@@ -83,6 +84,7 @@ mod tests {
             correction_deg: 0.57,
             fused: 481,
             keyframes_moved: 44,
+            scale: 1.0,
         };
         append(&path, &[(1014.9, l)]).unwrap();
         append(&path, &[(1020.0, l), (1021.0, l)]).unwrap();
@@ -90,7 +92,7 @@ mod tests {
         assert_eq!(text.lines().next().unwrap(), HEADER);
         assert_eq!(text.matches("timestamp").count(), 1);
         assert!(
-            text.contains("1014.900000,45,0,481,711,0.0400,0.570,481,44"),
+            text.contains("1014.900000,45,0,481,711,0.0400,0.570,481,44,1.0000"),
             "{text}"
         );
         assert_eq!(count_rows(&path).unwrap(), 3);

@@ -143,11 +143,12 @@ enum Command {
     },
     /// Render the synthetic room as a TUM RGB-D folder (rgb/, depth/,
     /// groundtruth.txt; TUM fr1 camera): `--path circuit` goes once round the
-    /// room and back to its first pose, a loop for loop closing.
+    /// room looking out at the walls and back to its first pose, a loop for
+    /// loop closing; `--path orbit` goes round looking in across the room.
     Render {
         /// New folder to write (must not exist or be empty).
         output: PathBuf,
-        /// The camera's path: `glide` (the default scene's) or `circuit`.
+        /// The camera's path: `glide` (the default scene's), `circuit` or `orbit`.
         #[arg(long, value_enum, default_value_t = CameraPathArg::Glide)]
         path: CameraPathArg,
         /// Frames at 30 fps (the circuit takes them all to close).
@@ -263,6 +264,7 @@ enum SensorArg {
 enum CameraPathArg {
     Glide,
     Circuit,
+    Orbit,
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -487,6 +489,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                 path: match path {
                     CameraPathArg::Glide => scenes::room::CameraPath::Glide,
                     CameraPathArg::Circuit => scenes::room::CameraPath::Circuit,
+                    CameraPathArg::Orbit => scenes::room::CameraPath::Orbit,
                 },
                 ..Default::default()
             };

@@ -1,8 +1,12 @@
 //! Least-squares alignment of point sets: Umeyama's similarity (rotation,
 //! translation, optional scale). The one home of it: relocalisation's
-//! 3D-3D fits and `dynslam eval`'s trajectory alignment both use it.
+//! 3D-3D fits, the loop transform and `dynslam eval`'s trajectory
+//! alignment all use it. [`Similarity`] is also the Sim(3) of monocular
+//! loop closing: a camera-from-world pose whose world is off in scale.
 
-use nalgebra::{Isometry3, Matrix3, Rotation3, UnitQuaternion, Vector3};
+use std::ops::Mul;
+
+use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
 /// A similarity transform `y = scale * R x + t`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -30,6 +34,49 @@ impl Similarity {
         let t = self.apply_point(&pose.translation.vector);
         let r = UnitQuaternion::from_rotation_matrix(&self.rotation) * pose.rotation;
         Isometry3::from_parts(t.into(), r)
+    }
+
+    /// A rigid transform as a similarity of scale 1.
+    pub fn from_isometry(t: &Isometry3<f64>) -> Self {
+        Self {
+            rotation: t.rotation.to_rotation_matrix(),
+            translation: t.translation.vector,
+            scale: 1.0,
+        }
+    }
+
+    /// Read as a camera-from-world pose `x_c = s R x_w + t`: the rigid pose
+    /// of the same camera once the world is measured in the similarity's
+    /// scale (rotation R, translation t / s). That is how a Sim(3) loop
+    /// correction becomes keyframe poses again (ORB-SLAM2's CorrectLoop).
+    pub fn to_pose(&self) -> Isometry3<f64> {
+        Isometry3::from_parts(
+            Translation3::from(self.translation / self.scale),
+            UnitQuaternion::from_rotation_matrix(&self.rotation),
+        )
+    }
+
+    pub fn inverse(&self) -> Self {
+        let rotation = self.rotation.inverse();
+        let scale = 1.0 / self.scale;
+        Self {
+            rotation,
+            translation: -(scale * (rotation * self.translation)),
+            scale,
+        }
+    }
+}
+
+/// `a * b` applies `b` first, then `a`.
+impl Mul for Similarity {
+    type Output = Similarity;
+
+    fn mul(self, b: Similarity) -> Similarity {
+        Similarity {
+            rotation: self.rotation * b.rotation,
+            translation: self.apply_point(&b.translation),
+            scale: self.scale * b.scale,
+        }
     }
 }
 
@@ -105,6 +152,35 @@ mod tests {
         assert!((t.translation.vector - truth.translation.vector).norm() < 1e-9);
         assert!(t.rotation.angle_to(&truth.rotation) < 1e-9);
         assert!(fit_rigid(&pairs[..2]).is_none());
+    }
+
+    #[test]
+    fn similarities_compose_invert_and_give_poses() {
+        let a = Similarity {
+            rotation: Rotation3::from_euler_angles(0.1, -0.2, 0.3),
+            translation: Vector3::new(0.5, -0.1, 2.0),
+            scale: 2.0,
+        };
+        let b = Similarity {
+            rotation: Rotation3::from_euler_angles(-0.3, 0.1, 0.05),
+            translation: Vector3::new(-1.0, 0.4, 0.2),
+            scale: 0.7,
+        };
+        let x = Vector3::new(0.3, 1.2, -0.8);
+        let ab = a * b;
+        assert!((ab.apply_point(&x) - a.apply_point(&b.apply_point(&x))).norm() < 1e-12);
+        assert!((a.inverse().apply_point(&a.apply_point(&x)) - x).norm() < 1e-12);
+        // The pose of a camera whose world is scaled by 2: it sees x where
+        // the similarity puts it, at half the depth.
+        let seen = a.to_pose() * Point3::from(x);
+        assert!((2.0 * seen.coords - a.apply_point(&x)).norm() < 1e-12);
+        let rigid = Isometry3::from_parts(
+            Translation3::new(0.1, 0.2, 0.3),
+            UnitQuaternion::from_euler_angles(0.2, 0.0, -0.1),
+        );
+        let back = Similarity::from_isometry(&rigid).to_pose();
+        assert!((back.translation.vector - rigid.translation.vector).norm() < 1e-12);
+        assert!(back.rotation.angle_to(&rigid.rotation) < 1e-12);
     }
 
     #[test]

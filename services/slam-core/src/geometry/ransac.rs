@@ -6,7 +6,7 @@
 
 use nalgebra::{Isometry3, Point3, Vector3};
 
-use super::alignment::fit_rigid;
+use super::alignment::{fit_rigid, umeyama, Similarity};
 use crate::rng::SplitMix64;
 
 /// The rigid transform mapping the first point of each pair onto the
@@ -30,6 +30,35 @@ pub(crate) fn rigid_ransac(
     )?;
     let refit = fit_rigid(&inliers.iter().map(|&i| pairs[i]).collect::<Vec<_>>())?;
     Some((refit, inliers))
+}
+
+/// The similarity mapping the first point of each pair onto the second, by
+/// RANSAC over 3-point Umeyama fits with scale (what an inlier is, the
+/// caller says: a monocular map's distances have no unit), refitted on its
+/// inliers; with the inliers' indices.
+pub(crate) fn similarity_ransac(
+    pairs: &[(Vector3<f64>, Vector3<f64>)],
+    iterations: usize,
+    seed: u64,
+    mut is_inlier: impl FnMut(&Similarity, usize) -> bool,
+) -> Option<(Similarity, Vec<usize>)> {
+    let fit = |s: &[usize]| {
+        let (from, to): (Vec<_>, Vec<_>) = s.iter().map(|&i| pairs[i]).unzip();
+        umeyama(&from, &to, true)
+    };
+    let search = Ransac {
+        sample: 3,
+        iterations,
+        seed,
+    };
+    let (_, inliers) = search.run(pairs.len(), fit, &mut is_inlier)?;
+    let refit = fit(&inliers)?;
+    // The refit keeps only the inliers it still explains.
+    let kept: Vec<usize> = inliers
+        .into_iter()
+        .filter(|&i| is_inlier(&refit, i))
+        .collect();
+    Some((refit, kept))
 }
 
 /// What one RANSAC search is asked for.

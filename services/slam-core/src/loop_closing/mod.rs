@@ -1,5 +1,7 @@
-//! Loop closing (ORB-SLAM2's LoopClosing, RGB-D: the scale is known, so the
-//! loop transform is an SE(3)), after local mapping of each keyframe:
+//! Loop closing (ORB-SLAM2's LoopClosing), after local mapping of each
+//! keyframe. The loop transform is a similarity: with depth its scale is
+//! known and held at 1 (an SE(3)); a monocular map drifts in scale too, and
+//! the loop's scale corrects that drift (Sim(3), as ORB-SLAM2 monocular):
 //!
 //! 1. **Detection** ([`LoopCloser::detect`]): keyframe-database candidates
 //!    that look more alike than the keyframe's own covisible neighbours do
@@ -8,9 +10,12 @@
 //!    groups that overlap), so that one look-alike never closes a loop.
 //! 2. **Geometry** ([`LoopCloser::solve`]): exhaustive descriptor matches
 //!    between the keyframe's points and the candidate's (matching by bag of
-//!    words found too few with our small vocabulary), a rigid transform by RANSAC on the
-//!    matched points' world positions (the drifted one against the old
-//!    one) whose inliers must spread across the image (a person seen at two
+//!    words found too few with our small vocabulary), a rigid transform
+//!    (with depth) or a similarity (monocular) by RANSAC on the matched
+//!    points' world positions (the drifted one against the old one; a
+//!    monocular inlier reprojects near its keypoint in both keyframes, as
+//!    a distance in an unknown scale says nothing) whose inliers must
+//!    spread across the image (a person seen at two
 //!    places gives a consistent transform too), then verification by projection: the candidate's neighbourhood
 //!    projected into the keyframe with the corrected pose must match enough
 //!    of its keypoints.
@@ -38,15 +43,16 @@ use std::collections::HashSet;
 pub mod correction;
 pub mod thread;
 
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::camera::Camera;
 use crate::features::orb::{hamming, MATCH_MAX_DISTANCE};
-use crate::geometry::ransac::rigid_ransac;
-use crate::map::Map;
+use crate::geometry::alignment::Similarity;
+use crate::geometry::ransac::{rigid_ransac, similarity_ransac};
+use crate::map::{KeyFrame, Map};
 use crate::matcher::match_exhaustive;
-use crate::optimizer::pose::renormalized;
+use crate::params::Sensor;
 use correction::LoopUpdate;
 
 /// Consecutive keyframes whose candidate groups must agree (ORB-SLAM2: 3).
@@ -62,6 +68,9 @@ const MIN_INLIERS: usize = 20;
 const MIN_CONFIRMED: usize = 40;
 /// RANSAC inlier distance of two matched points' positions (metres).
 const INLIER_M: f64 = 0.05;
+/// Monocular RANSAC inlier: reprojection error in both keyframes within
+/// this chi-square bound (2 degrees of freedom, 99 %; ORB-SLAM2's 9.21).
+const INLIER_CHI2: f64 = 9.21;
 /// Search radius (pixels) when confirming by projection.
 const CONFIRM_RADIUS_PX: f64 = 10.0;
 
@@ -80,6 +89,9 @@ pub struct LoopClosure {
     /// Points fused with the old map, keyframes the essential graph moved.
     pub fused: usize,
     pub keyframes_moved: usize,
+    /// The loop transform's scale: the drifted map's size against the old
+    /// map's where the loop closed (1 with depth).
+    pub scale: f64,
 }
 
 /// What the loop closer did after one keyframe.
@@ -109,6 +121,7 @@ pub struct LoopOutcome {
 #[derive(Clone)]
 pub struct LoopCloser {
     camera: Camera,
+    sensor: Sensor,
     /// Adjust the whole map after a correction.
     global_ba: bool,
     /// Candidate groups of the last keyframe, each with its consistency
@@ -122,8 +135,9 @@ pub struct LoopCloser {
 /// keyframe and the point matches.
 pub struct LoopGeometry {
     pub matched: usize,
-    /// Camera from world of the new keyframe, in the old map's frame.
-    pub corrected_cw: Isometry3<f64>,
+    /// Camera from world of the new keyframe, in the old map's frame (and,
+    /// monocular, with the new keyframe's scale against the old map's).
+    pub corrected_cw: Similarity,
     /// (new point, old point) pairs: the same place, measured twice.
     pub point_pairs: Vec<(usize, usize)>,
     pub inliers: usize,
@@ -131,11 +145,12 @@ pub struct LoopGeometry {
 }
 
 impl LoopCloser {
-    /// A loop closer for `camera`; `global_ba`: adjust the whole map after
-    /// each correction.
-    pub fn new(camera: Camera, global_ba: bool) -> Self {
+    /// A loop closer for `camera` and `sensor`; `global_ba`: adjust the
+    /// whole map after each correction.
+    pub fn new(camera: Camera, sensor: Sensor, global_ba: bool) -> Self {
         Self {
             camera,
+            sensor,
             global_ba,
             groups: Vec::new(),
             last_loop: None,
@@ -176,11 +191,11 @@ impl LoopCloser {
         };
         let t = std::time::Instant::now();
         let mut corrected = map.clone();
-        let correction = corrected.correct_loop(id, &g);
+        let correction = corrected.correct_loop(id, &g, self.sensor);
         report.correct_ms = t.elapsed().as_secs_f64() * 1e3;
         if self.global_ba {
             let t = std::time::Instant::now();
-            corrected.global_bundle_adjustment(&self.camera, crate::params::Sensor::Rgbd);
+            corrected.global_bundle_adjustment(&self.camera, self.sensor);
             report.global_ba_ms = t.elapsed().as_secs_f64() * 1e3;
         }
         report.closed = Some(correction.closure);
@@ -258,7 +273,7 @@ impl LoopCloser {
     }
 
     /// The loop transform between keyframe `id` and candidate `matched`,
-    /// verified (ORB-SLAM2's ComputeSim3 with the scale fixed at 1).
+    /// verified (ORB-SLAM2's ComputeSim3; with depth the scale is 1).
     pub fn solve(&self, map: &Map, id: usize, matched: usize) -> Option<LoopGeometry> {
         let kf = &map.keyframes[id];
         let old = &map.keyframes[matched];
@@ -278,7 +293,28 @@ impl LoopCloser {
             .iter()
             .map(|&(_, n, o)| (map.points[n].position, map.points[o].position))
             .collect();
-        let (correction, inliers) = rigid_ransac(&positions, INLIER_M, 300, 0x100B)?;
+        let (correction, inliers) = match self.sensor {
+            Sensor::Rgbd => rigid_ransac(&positions, INLIER_M, 300, 0x100B)
+                .map(|(t, inliers)| (Similarity::from_isometry(&t), inliers))?,
+            Sensor::Monocular => {
+                // The old keyframe's measurement of each of its points.
+                let measured_old = |p: usize| {
+                    old.points
+                        .iter()
+                        .position(|&q| q == p)
+                        .map(|i| &old.measurements[i])
+                };
+                similarity_ransac(&positions, 300, 0x100B, |s, j| {
+                    let (i, _, p_old) = matches[j];
+                    let (new_x, old_x) = &positions[j];
+                    let Some(m_old) = measured_old(p_old) else {
+                        return false;
+                    };
+                    self.reprojects(kf, &kf.measurements[i], &s.inverse().apply_point(old_x))
+                        && self.reprojects(old, m_old, &s.apply_point(new_x))
+                })?
+            }
+        };
         if inliers.len() < MIN_INLIERS {
             return None;
         }
@@ -296,7 +332,7 @@ impl LoopCloser {
             return None;
         }
         // The camera sees the old world through the correction.
-        let corrected_cw = renormalized(&(kf.pose_cw * correction.inverse()));
+        let corrected_cw = Similarity::from_isometry(&kf.pose_cw) * correction.inverse();
         let confirmed = self.confirm(map, id, matched, &corrected_cw);
         if confirmed < MIN_CONFIRMED {
             return None;
@@ -313,10 +349,26 @@ impl LoopCloser {
         })
     }
 
+    /// World point `x` projects within the chi-square bound of keyframe
+    /// `kf`'s measurement `m`.
+    fn reprojects(
+        &self,
+        kf: &KeyFrame,
+        m: &crate::map::KeyFrameObservation,
+        x: &Vector3<f64>,
+    ) -> bool {
+        let pc = kf.pose_cw * Point3::from(*x);
+        if pc.z <= 0.0 {
+            return false;
+        }
+        let (u, v) = self.camera.project(&pc.coords);
+        ((u - m.u).powi(2) + (v - m.v).powi(2)) * m.info <= INLIER_CHI2
+    }
+
     /// Points of the candidate's neighbourhood that project, with the
     /// corrected pose, near a keypoint of keyframe `id` with a close
     /// descriptor.
-    fn confirm(&self, map: &Map, id: usize, matched: usize, pose_cw: &Isometry3<f64>) -> usize {
+    fn confirm(&self, map: &Map, id: usize, matched: usize, pose_cw: &Similarity) -> usize {
         let kf = &map.keyframes[id];
         let keypoints: Vec<(f64, f64, &crate::features::orb::Descriptor)> = kf
             .measurements
@@ -333,11 +385,11 @@ impl LoopCloser {
         let mut confirmed = 0;
         for p in points {
             let point = &map.points[p];
-            let pc = pose_cw * Point3::from(point.position);
-            if pc.z < 0.1 {
+            let pc = pose_cw.apply_point(&point.position);
+            if pc.z <= 0.0 {
                 continue;
             }
-            let (u, v) = self.camera.project(&pc.coords);
+            let (u, v) = self.camera.project(&pc);
             if !(x0..x1).contains(&u) || !(y0..y1).contains(&v) {
                 continue;
             }

@@ -33,7 +33,7 @@ impl LoopClosing {
         if !params.loop_closing {
             return Self::Off;
         }
-        let closer = LoopCloser::new(camera, params.global_bundle_adjustment);
+        let closer = LoopCloser::new(camera, params.sensor, params.global_bundle_adjustment);
         if !on_thread {
             return Self::Inline(closer);
         }
@@ -41,7 +41,11 @@ impl LoopClosing {
             Ok(thread) => Self::OnThread(thread),
             Err(e) => {
                 tracing::warn!("loop closing thread not started ({e}): closing loops inline");
-                Self::Inline(LoopCloser::new(camera, params.global_bundle_adjustment))
+                Self::Inline(LoopCloser::new(
+                    camera,
+                    params.sensor,
+                    params.global_bundle_adjustment,
+                ))
             }
         }
     }

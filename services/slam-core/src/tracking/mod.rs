@@ -250,6 +250,7 @@ impl Tracking {
                 pose,
                 radius: r,
                 min_depth_m: self.params.min_depth_m,
+                ratio: self.params.match_ratio,
                 count_visible: pass == 1,
             };
             matched = match_by_projection(map, frame, &self.camera, local, &search);

@@ -5,7 +5,7 @@
 //!
 //! `slam-bench [DATASET] [--masks] [--skip N] [--limit N] [--threads N] [--local-ba N]
 //! [--readout S] [--inline-mapping] [--no-triangulation] [--fusion] [--loop-closing [--no-global-ba]]
-//! [--features N] [--monocular] [--extractor own|kornia]
+//! [--features N] [--match-ratio R] [--monocular] [--extractor own|kornia]
 //! [--verbose] [--out trajectory.txt]`
 //! With more than one extraction thread it also measures extraction alone
 //! with 1 and N threads on the same frames and prints the ratio.
@@ -55,6 +55,10 @@ struct Args {
     /// (default: the library's, off).
     #[arg(long)]
     local_ba: Option<usize>,
+    /// Nearest-neighbour ratio of tracking's match by projection, in
+    /// (0, 1] (default: the library's, 1 = the best match wins).
+    #[arg(long)]
+    match_ratio: Option<f64>,
     /// Local mapping inline after each keyframe instead of on its thread
     /// (same results; to see what the thread saves).
     #[arg(long)]
@@ -167,6 +171,12 @@ fn main() -> Result<()> {
     if let Some(n) = args.features {
         anyhow::ensure!(n >= 50, "--features {n}: at least 50 are needed to track");
         params.orb.features = n;
+    }
+    if let Some(r) = args.match_ratio {
+        if !(r > 0.0 && r <= 1.0) {
+            anyhow::bail!("--match-ratio {r}: not a ratio in (0, 1]");
+        }
+        params.match_ratio = r;
     }
     if let Some(n) = args.local_ba {
         params.local_ba_keyframes = n;

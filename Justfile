@@ -131,6 +131,18 @@ bench-loops: build
                 --out "bench-results/circuit_${features}${loops:+_loops}.txt"
         done
     done
+    # Monocular: the loop is a similarity (Sim(3)); the orbit looks in
+    # across the room (turning past the walls, a monocular map shrinks).
+    orbit=.cache/scenes/orbit-450
+    if [ ! -f "$orbit/groundtruth.txt" ]; then
+        rm -rf "$orbit"
+        ./target/release/dynslam render "$orbit" --path orbit --frames 450
+    fi
+    for loops in "" --loop-closing; do
+        echo "== orbit, monocular, 2000 features ${loops:-without loop closing}"
+        ./target/release/slam-bench "$orbit" --monocular --features 2000 $loops \
+            --out "bench-results/orbit_mono${loops:+_loops}.txt"
+    done
 
 synth-people: build
     #!/usr/bin/env bash

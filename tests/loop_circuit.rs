@@ -1,11 +1,13 @@
 //! Loop closing on a rendered circuit (scenes::room, `CameraPath::Circuit`):
 //! the camera goes once round the room looking out at the walls and comes
-//! back to where it started, long after the start left the local map.
+//! back to where it started, long after the start left the local map. And
+//! monocular on the rendered orbit (`CameraPath::Orbit`, round the room
+//! looking in), where the loop is a similarity (Sim(3)).
 
 mod common;
 use common::*;
 use scenes::room::{render_room, CameraPath, RoomOptions};
-use slam_core::eval::{evaluate, EvalOptions};
+use slam_core::eval::{evaluate, Alignment, EvalOptions};
 use slam_core::io::trajectory::Trajectory;
 use slam_core::{Camera, SlamParams, System};
 use std::path::{Path, PathBuf};
@@ -14,24 +16,33 @@ use std::sync::OnceLock;
 /// 15 s at 30 fps: 0.8 deg of turn per frame.
 const FRAMES: usize = 450;
 
-/// The circuit, rendered once for the tests of this file.
-fn circuit() -> &'static Path {
-    static RENDERED: OnceLock<PathBuf> = OnceLock::new();
-    RENDERED.get_or_init(|| {
-        let seq = scratch("loop-circuit").join("circuit");
+/// `path`, rendered once (per path) for the tests of this file.
+fn rendered(path: CameraPath) -> &'static Path {
+    static CIRCUIT: OnceLock<PathBuf> = OnceLock::new();
+    static ORBIT: OnceLock<PathBuf> = OnceLock::new();
+    let (cell, name) = match path {
+        CameraPath::Orbit => (&ORBIT, "orbit"),
+        _ => (&CIRCUIT, "circuit"),
+    };
+    cell.get_or_init(|| {
+        let seq = scratch("loop-circuit").join(name);
         let t = std::time::Instant::now();
         let opts = RoomOptions {
             frames: FRAMES,
-            path: CameraPath::Circuit,
+            path,
             ..Default::default()
         };
         render_room(&seq, &Camera::tum_fr1(), &opts).unwrap();
         eprintln!(
-            "rendered {FRAMES} frames in {:.1} s",
+            "rendered {FRAMES} frames of the {name} in {:.1} s",
             t.elapsed().as_secs_f64()
         );
         seq
     })
+}
+
+fn circuit() -> &'static Path {
+    rendered(CameraPath::Circuit)
 }
 
 /// Tracks the circuit with `features` ORB features per frame (fewer:
@@ -99,6 +110,67 @@ fn a_closed_circuit_is_detected_and_corrected() {
             "{features} features: {on:.4} vs {off:.4} m"
         );
     }
+}
+
+/// Monocular on the orbit (2000 features: with 1000 the monocular map's
+/// scale collapses while it turns, docs/design.md): the loop closes where
+/// the path does, as a similarity, and the trajectory corrected by it (the
+/// Sim(3) essential graph, then global bundle adjustment) is at most 0.7x
+/// the one without loop closing (measured 0.0142 -> 0.0089 m, 0.63x, the
+/// loop's scale 0.991; Sim(3)-aligned, as a monocular trajectory has no
+/// metric scale).
+#[test]
+fn a_monocular_orbit_closes_its_loop_with_a_similarity() {
+    let dir = rendered(CameraPath::Orbit);
+    let truth = Trajectory::load_tum(&dir.join("groundtruth.txt")).unwrap();
+    let mut ates = Vec::new();
+    for loop_closing in [false, true] {
+        let mut params = SlamParams::monocular();
+        params.loop_closing = loop_closing;
+        params.orb.features = 2000;
+        // Inline: the same figures on every machine (the loop thread's
+        // timing moves where a correction lands).
+        params.mapping_thread = false;
+        let mut sys = System::new(params, Camera::tum_fr1());
+        let mut tracked = 0;
+        for t in &truth.stamps {
+            let name = format!("{t:.6}.png");
+            let rgb = image::open(dir.join("rgb").join(&name)).unwrap().to_rgb8();
+            let r = sys.track_monocular(rgb.as_raw(), None, 640, 480, *t);
+            tracked += r.state.is_tracked() as usize;
+        }
+        let options = EvalOptions {
+            alignment: Alignment::Sim3,
+            ..Default::default()
+        };
+        let ate = evaluate(&truth, &sys.trajectory(), options)
+            .unwrap()
+            .ate_rmse_m;
+        let loops = sys.loops().to_vec();
+        eprintln!(
+            "orbit, monocular, loop closing {loop_closing}: {tracked}/{FRAMES} tracked, ATE \
+             {ate:.4} m, loops {loops:?}"
+        );
+        assert!(tracked >= FRAMES * 95 / 100, "{tracked} of {FRAMES}");
+        if loop_closing {
+            assert_eq!(loops.len(), 1, "one loop, where the path closes: {loops:?}");
+            let keyframes = sys.map().live_keyframes().count();
+            assert!(
+                loops[0].matched <= 3 && loops[0].keyframe + 5 >= keyframes,
+                "{loops:?} of {keyframes} keyframes"
+            );
+        } else {
+            assert!(loops.is_empty());
+        }
+        ates.push(ate);
+    }
+    eprintln!(
+        "orbit, monocular: ATE {:.4} -> {:.4} m ({:.2}x)",
+        ates[0],
+        ates[1],
+        ates[1] / ates[0]
+    );
+    assert!(ates[1] <= 0.7 * ates[0], "{ates:?}");
 }
 
 /// The whole pipeline with `services.slam.loop_closing = true` (mask

@@ -3,17 +3,21 @@
 //! `just synth-people`'s sequences), `slam-bench --loop-closing` accepts no
 //! loop, with the ground-truth masks and without any mask (the people's
 //! features then reach the map: a person seen at two places matches a
-//! consistent rigid transform, which the spread test refuses).
+//! consistent rigid transform, which the spread test refuses); monocular
+//! too (a similarity, its inliers judged by reprojection).
 
 mod common;
 use common::*;
 use std::process::Command;
 
-fn loops_closed(dataset: &std::path::Path, masks: bool) -> (usize, String) {
+fn loops_closed(dataset: &std::path::Path, masks: bool, monocular: bool) -> (usize, String) {
     let mut cmd = Command::new(bin_dir().join("slam-bench"));
     cmd.arg(dataset).arg("--loop-closing");
     if masks {
         cmd.arg("--masks");
+    }
+    if monocular {
+        cmd.arg("--monocular");
     }
     let out = cmd
         .arg("--out")
@@ -52,9 +56,11 @@ fn people_never_close_a_loop() {
             .output()
             .unwrap();
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        for masks in [true, false] {
-            let (n, line) = loops_closed(&seq, masks);
-            eprintln!("people ({occlusion} occlusion), masks {masks}: {line}");
+        for (masks, monocular) in [(true, false), (false, false), (true, true), (false, true)] {
+            let (n, line) = loops_closed(&seq, masks, monocular);
+            eprintln!(
+                "people ({occlusion} occlusion), masks {masks}, monocular {monocular}: {line}"
+            );
             assert_eq!(n, 0, "a loop closed on people: {line}");
         }
     }

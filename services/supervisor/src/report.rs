@@ -343,7 +343,7 @@ pub fn write(
                 e.rpe_interval_trans_rmse_m,
                 e.rpe_interval_rot_rmse_deg
             )?;
-            if let Some(line) = corrected_trajectory_line(run_dir, dataset) {
+            if let Some(line) = corrected_trajectory_line(run_dir, dataset, alignment) {
                 writeln!(md, "{line}\n")?;
             }
             writeln!(md, "![trajectory](plots/trajectory.png)\n")?;
@@ -497,8 +497,13 @@ fn loop_indices(run_dir: &Path, e: &EvalSummary) -> Vec<usize> {
 }
 
 /// The accuracy of the loop-corrected trajectory the SLAM wrote at stop,
-/// as a sentence (None without one or without ground truth).
-fn corrected_trajectory_line(run_dir: &Path, dataset: &Path) -> Option<String> {
+/// as a sentence (None without one or without ground truth), aligned as the
+/// live trajectory is (Sim(3) for a monocular map).
+fn corrected_trajectory_line(
+    run_dir: &Path,
+    dataset: &Path,
+    alignment: Alignment,
+) -> Option<String> {
     let path = run_dir.join(crate::run::CORRECTED_TRAJECTORY_FILE);
     if !path.is_file() {
         return None;
@@ -508,7 +513,13 @@ fn corrected_trajectory_line(run_dir: &Path, dataset: &Path) -> Option<String> {
     Some(
         match Trajectory::load_tum(&path)
             .map_err(anyhow::Error::from)
-            .and_then(|est| Ok(evaluate(&gt, &est, EvalOptions::default())?))
+            .and_then(|est| {
+                let options = EvalOptions {
+                    alignment,
+                    ..Default::default()
+                };
+                Ok(evaluate(&gt, &est, options)?)
+            })
         {
             Ok(c) => format!(
                 "With the loop corrections applied to every frame (`{name}`, {} poses): ATE RMSE {:.4} m. The table is of `trajectory.txt`, the poses as they were published live.",

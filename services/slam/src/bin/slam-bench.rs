@@ -322,9 +322,9 @@ fn main() -> Result<()> {
         );
         for (l, (correct, ba)) in system.loops().iter().zip(system.loop_correction_ms()) {
             println!(
-                "  loop: keyframe {} with {}, {} inliers, corrected {:.3} m / {:.2} deg \
-                 (correction {correct:.0} ms, global BA {ba:.0} ms)",
-                l.keyframe, l.matched, l.inliers, l.correction_m, l.correction_deg
+                "  loop: keyframe {} with {}, {} inliers, corrected {:.3} m / {:.2} deg, \
+                 scale {:.4} (correction {correct:.0} ms, global BA {ba:.0} ms)",
+                l.keyframe, l.matched, l.inliers, l.correction_m, l.correction_deg, l.scale
             );
         }
     }
@@ -379,7 +379,7 @@ fn main() -> Result<()> {
             s.rpe_rot_rmse_deg
         );
         if !system.loops().is_empty() {
-            let c = evaluate_files(&gt, &corrected_out, EvalOptions::default())?;
+            let c = evaluate_files(&gt, &corrected_out, options)?;
             println!(
                 "ATE rmse with the loop corrections {:.4} m ({} pairs; {})",
                 c.ate_rmse_m,

@@ -50,7 +50,7 @@ use crate::camera::Camera;
 use crate::features::orb::{hamming, MATCH_MAX_DISTANCE};
 use crate::geometry::alignment::Similarity;
 use crate::geometry::ransac::{rigid_ransac, similarity_ransac};
-use crate::map::{KeyFrame, Map};
+use crate::map::{KeyFrame, KeyFrameObservation, Map};
 use crate::matcher::match_exhaustive;
 use crate::params::Sensor;
 use correction::LoopUpdate;
@@ -298,16 +298,12 @@ impl LoopCloser {
                 .map(|(t, inliers)| (Similarity::from_isometry(&t), inliers))?,
             Sensor::Monocular => {
                 // The old keyframe's measurement of each of its points.
-                let measured_old = |p: usize| {
-                    old.points
-                        .iter()
-                        .position(|&q| q == p)
-                        .map(|i| &old.measurements[i])
-                };
+                let measured_old: std::collections::HashMap<usize, _> =
+                    old.points.iter().copied().zip(&old.measurements).collect();
                 similarity_ransac(&positions, 300, 0x100B, |s, j| {
                     let (i, _, p_old) = matches[j];
                     let (new_x, old_x) = &positions[j];
-                    let Some(m_old) = measured_old(p_old) else {
+                    let Some(m_old) = measured_old.get(&p_old) else {
                         return false;
                     };
                     self.reprojects(kf, &kf.measurements[i], &s.inverse().apply_point(old_x))
@@ -355,12 +351,7 @@ impl LoopCloser {
 
     /// World point `x` projects within the chi-square bound of keyframe
     /// `kf`'s measurement `m`.
-    fn reprojects(
-        &self,
-        kf: &KeyFrame,
-        m: &crate::map::KeyFrameObservation,
-        x: &Vector3<f64>,
-    ) -> bool {
+    fn reprojects(&self, kf: &KeyFrame, m: &KeyFrameObservation, x: &Vector3<f64>) -> bool {
         let pc = kf.pose_cw * Point3::from(*x);
         if pc.z <= 0.0 {
             return false;

@@ -25,7 +25,9 @@ fn rendered(path: CameraPath) -> &'static Path {
         _ => (&CIRCUIT, "circuit"),
     };
     cell.get_or_init(|| {
-        let seq = scratch("loop-circuit").join(name);
+        // A scratch folder per path: scratch() empties its folder, and the
+        // two renders run in parallel tests.
+        let seq = scratch(&format!("loop-{name}")).join(name);
         let t = std::time::Instant::now();
         let opts = RoomOptions {
             frames: FRAMES,

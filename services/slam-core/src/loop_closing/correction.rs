@@ -91,7 +91,8 @@ impl Map {
     ///    follows, and every point moved with the keyframe it belongs to.
     pub fn correct_loop(&mut self, id: usize, g: &LoopGeometry, sensor: Sensor) -> Correction {
         let before: Vec<Isometry3<f64>> = self.keyframes.iter().map(|k| k.pose_cw).collect();
-        let rigid = |k: usize| Similarity::from_isometry(&before[k]);
+        let before_sim: Vec<Similarity> = before.iter().map(Similarity::from_isometry).collect();
+        let rigid = |k: usize| before_sim[k];
         // 1.
         let mut current: Vec<usize> = vec![id];
         current.extend(self.keyframes[id].covisible.iter().map(|e| e.0));
@@ -255,8 +256,8 @@ impl Map {
     /// id order composes the chain), in that ancestor's scale; points in
     /// `positions` go there, every other point moves with its first
     /// observer (the keyframe that made it), so it stays where that
-    /// keyframe saw it, at its depth times the keyframe's scale. Returns
-    /// every keyframe's scale.
+    /// keyframe saw it, its depth divided by the keyframe's scale (the
+    /// keyframe's units per world unit). Returns every keyframe's scale.
     pub(crate) fn apply_corrections(
         &mut self,
         poses_cw: &HashMap<usize, (Isometry3<f64>, f64)>,

@@ -102,6 +102,10 @@ bench-slam dataset=tum *args="": build
 bench-realtime *args="": build setup
     ./target/release/realtime-bench {{args}}
 
+# Real-time soak of MINUTES on the shared sequence played over and over (a separate `dynslam run`): RSS per process and the map's size per minute; fails when a non-SLAM process grows > 10 MB after minute 1 (writes bench-results/soak.json).
+soak minutes="10" *args="": build setup
+    ./target/release/soak --minutes {{minutes}} {{args}}
+
 # Our ORB extractor against kornia-imgproc's on the same frames and tracker (own build folder: target/kornia).
 bench-orb dataset=tum *args="":
     cargo build --release -p slam --features kornia --bin slam-bench --target-dir target/kornia

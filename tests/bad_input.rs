@@ -382,3 +382,72 @@ fn bad_map_files_and_flags_are_refused_before_start() {
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A disk that fills up mid-run (the run folder on a 256 KB tmpfs, mounted
+/// in a private user and mount namespace: no root needed): the run fails
+/// with exit 1 and an error naming the file and the cause, status.json says
+/// `failed` with that error, no temporary file stays behind, the services
+/// are gone and nothing of the run is left in /dev/shm.
+#[test]
+fn a_full_disk_mid_run_fails_the_run_cleanly() {
+    let dir = scratch("fulldisk");
+    let config = write_config(&dir, SCRIPTED);
+    let seen = dir.join("seen");
+    std::fs::create_dir_all(&seen).unwrap();
+    let small = dir.join("small");
+    std::fs::create_dir_all(&small).unwrap();
+    let run_id = id("fulldisk");
+    // Inside the namespace: mount, run, then copy out what the test checks
+    // (the tmpfs goes with the namespace).
+    let script = format!(
+        "set -u; mount -t tmpfs -o size=256k tmpfs '{small}' || exit 97; \
+         '{dynslam}' run '{tum}' --config '{config}' --output-dir '{small}' --run-id {run_id} \
+           2> '{seen}/stderr'; echo $? > '{seen}/rc'; \
+         cp '{small}/{run_id}/status.json' '{seen}/' ; ls -a '{small}/{run_id}' > '{seen}/listing'; \
+         df -k '{small}' > '{seen}/df'",
+        small = small.display(),
+        dynslam = dynslam().display(),
+        tum = shared_tum().display(),
+        config = config.display(),
+        seen = seen.display(),
+    );
+    let o = std::process::Command::new("unshare")
+        .args(["--user", "--map-root-user", "--mount", "sh", "-c", &script])
+        .output()
+        .expect("unshare (util-linux) runs");
+    assert!(
+        o.status.success(),
+        "the namespace could not be set up (rc {:?}): {}",
+        o.status.code(),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let read = |f: &str| std::fs::read_to_string(seen.join(f)).unwrap_or_default();
+    let stderr = read("stderr");
+    assert_eq!(read("rc").trim(), "1", "exit 1 on a full disk:\n{stderr}");
+    assert!(
+        stderr.contains("No space left on device"),
+        "the cause is named:\n{stderr}"
+    );
+    assert!(stderr.contains(&run_id), "the file is named:\n{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    let status: serde_json::Value = serde_json::from_str(&read("status.json"))
+        .unwrap_or_else(|e| panic!("status.json: {e}\n{stderr}"));
+    assert_eq!(status["state"], "failed", "{status}");
+    assert!(
+        status["error"]
+            .as_str()
+            .is_some_and(|e| e.contains("No space left on device")),
+        "{status}"
+    );
+    let listing = read("listing");
+    assert!(
+        !listing.lines().any(|f| f.ends_with(".tmp")),
+        "temporary files left behind:\n{listing}"
+    );
+    assert_no_shm_left(&run_id);
+    assert!(
+        processes_mentioning(&run_id).is_empty(),
+        "processes of the run outlived it"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}

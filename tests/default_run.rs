@@ -130,10 +130,22 @@ fn default_run_renders_the_scene_runs_every_service_and_writes_the_report() {
         .iter()
         .all(|r| r["slam_mapping_us"].parse::<u64>().is_ok()));
 
-    // Every frame's masks are on file; the map has coloured points.
+    // Every frame's masks are on record and scored against the ground
+    // truth; the images kept are the segmenter's (run.save_masks =
+    // "keyframes"); the map has coloured points.
     let masks_csv = std::fs::read_to_string(run_dir.join("masks.csv")).unwrap();
     assert_eq!(masks_csv.lines().count(), 151, "header + one row per frame");
-    assert!(run_dir.join("masks/000149.png").is_file());
+    let mut kept = 0;
+    for line in masks_csv.lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        let image = run_dir.join(format!("masks/{:0>6}.png", f[0]));
+        assert_eq!(image.is_file(), f[1] == "segmenter", "{line}");
+        assert_eq!(f[4].is_empty(), f[1] != "segmenter", "{line}");
+        kept += image.is_file() as usize;
+    }
+    assert!((5..150).contains(&kept), "{kept} segmenter images");
+    let ious = std::fs::read_to_string(run_dir.join("mask_iou.csv")).unwrap();
+    assert!(ious.lines().any(|l| l.contains(",propagator,")), "{ious}");
     let map = slam_core::io::ply::read_ply(&run_dir.join("map.ply")).unwrap();
     assert!(map.len() > 1000, "{} map points", map.len());
     assert!(map

@@ -176,7 +176,34 @@ pub fn configured_frames(
     if src.limit > 0 {
         frames.truncate(src.limit as usize);
     }
-    Ok(frames)
+    Ok(repeated(frames, src.repeat))
+}
+
+/// `frames` played `passes` times in a row: every pass's timestamps go on
+/// one (median) frame period after the previous pass's last frame, so time
+/// only moves forward.
+pub fn repeated(frames: Vec<FrameEntry>, passes: u32) -> Vec<FrameEntry> {
+    if passes <= 1 || frames.is_empty() {
+        return frames;
+    }
+    let mut periods: Vec<f64> = frames
+        .windows(2)
+        .map(|w| w[1].timestamp - w[0].timestamp)
+        .collect();
+    periods.sort_by(f64::total_cmp);
+    let period = periods
+        .get(periods.len() / 2)
+        .copied()
+        .unwrap_or(1.0 / 30.0);
+    let span = frames[frames.len() - 1].timestamp - frames[0].timestamp + period;
+    let mut out = Vec::with_capacity(frames.len() * passes as usize);
+    for pass in 0..passes {
+        out.extend(frames.iter().map(|f| FrameEntry {
+            timestamp: f.timestamp + pass as f64 * span,
+            ..f.clone()
+        }));
+    }
+    out
 }
 
 /// Associates rgb and depth by nearest timestamp within `max_diff` seconds:
@@ -275,6 +302,30 @@ mod tests {
 
     fn list(text: &str) -> Result<TimedList, SourceError> {
         parse_timed_list(text, Path::new("/d/rgb.txt"), Path::new("/d"))
+    }
+
+    #[test]
+    fn a_repeated_sequence_keeps_time_moving_forward() {
+        let frames: Vec<FrameEntry> = [10.0, 10.1, 10.2, 10.35]
+            .iter()
+            .map(|&t| FrameEntry {
+                timestamp: t,
+                rgb: PathBuf::from(format!("rgb/{t}.png")),
+                depth: None,
+            })
+            .collect();
+        assert_eq!(repeated(frames.clone(), 1), frames);
+        let three = repeated(frames.clone(), 3);
+        assert_eq!(three.len(), 12);
+        // The median period (0.1 s) separates the passes.
+        assert!(
+            (three[4].timestamp - 10.45).abs() < 1e-9,
+            "{}",
+            three[4].timestamp
+        );
+        assert!((three[11].timestamp - (10.35 + 2.0 * 0.45)).abs() < 1e-9);
+        assert!(three.windows(2).all(|w| w[1].timestamp > w[0].timestamp));
+        assert_eq!(three[8].rgb, frames[0].rgb);
     }
 
     #[test]

@@ -175,6 +175,34 @@ pub struct RunConfig {
     /// The run's folder is the user's alone (0700) and every file the run
     /// writes is created under umask 077 (0600); false: the user's umask.
     pub private: bool,
+    /// Which mask images the run folder keeps (`masks/<seq>.png`); every set
+    /// of masks gets its `masks.csv` row (and its score against ground-truth
+    /// masks) whatever this says.
+    pub save_masks: SaveMasks,
+}
+
+/// Which label images a run writes to `masks/`.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum SaveMasks {
+    /// The segmenter's (the keyframes'): a few per second, the ones the
+    /// map keeps.
+    #[default]
+    Keyframes,
+    /// Every frame's (a 10-minute run at 30 fps: about 80 MB).
+    All,
+    None,
+}
+
+impl SaveMasks {
+    /// Whether a set of masks from `source` is written as an image.
+    pub fn keeps(self, source: shared_types::MaskSource) -> bool {
+        match self {
+            SaveMasks::All => true,
+            SaveMasks::Keyframes => source == shared_types::MaskSource::Segmenter,
+            SaveMasks::None => false,
+        }
+    }
 }
 
 impl Default for RunConfig {
@@ -187,6 +215,7 @@ impl Default for RunConfig {
             max_height: 480,
             require_masks: false,
             private: true,
+            save_masks: SaveMasks::Keyframes,
         }
     }
 }
@@ -216,6 +245,9 @@ pub struct SourceConfig {
     pub limit: u64,
     /// Frame period for image folders without timestamps (seconds).
     pub image_period: f64,
+    /// Play the sequence this many times in a row (soaks and kill storms):
+    /// each pass's timestamps go on one frame period after the last pass's.
+    pub repeat: u32,
 }
 
 impl Default for SourceConfig {
@@ -227,6 +259,7 @@ impl Default for SourceConfig {
             depth_scale: 5000.0,
             limit: 0,
             image_period: 1.0 / 30.0,
+            repeat: 1,
         }
     }
 }
@@ -271,6 +304,10 @@ pub struct SupervisorConfig {
     pub stop_timeout_ms: u64,
     /// Period of the child-exit and dead-node checks.
     pub watch_period_ms: u64,
+    /// Watchdog: with every service up, no frame recorded for this long
+    /// names the stage the oldest frame is stuck in and kills that service
+    /// (restarted like a crash); 0: off.
+    pub stall_timeout_s: u64,
 }
 
 impl Default for SupervisorConfig {
@@ -283,6 +320,7 @@ impl Default for SupervisorConfig {
             ready_timeout_s: 60,
             stop_timeout_ms: 3000,
             watch_period_ms: 20,
+            stall_timeout_s: 30,
         }
     }
 }
@@ -576,6 +614,12 @@ impl PipelineConfig {
         if !(self.source.image_period.is_finite() && self.source.image_period > 0.0) {
             return Err("key `source.image_period`: must be a positive number of seconds".into());
         }
+        if !(1..=100_000).contains(&self.source.repeat) {
+            return Err(format!(
+                "key `source.repeat`: {} is not a number of passes over the sequence (1..=100000)",
+                self.source.repeat
+            ));
+        }
         if !matches!(
             self.services.slam.mask_mode.as_str(),
             "" | "filter" | "blackout"
@@ -631,6 +675,12 @@ impl PipelineConfig {
         }
         if s.watch_period_ms == 0 {
             return Err("key `supervisor.watch_period_ms`: must be > 0".into());
+        }
+        if s.stall_timeout_s > 3600 {
+            return Err(format!(
+                "key `supervisor.stall_timeout_s`: {} s is not a stall timeout (0 = off, 1..=3600)",
+                s.stall_timeout_s
+            ));
         }
         Ok(())
     }

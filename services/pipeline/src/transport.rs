@@ -82,6 +82,58 @@ const MAX_PUBLISHERS: usize = 4;
 const MAX_SUBSCRIBERS: usize = 8;
 const MAX_NODES: usize = 24;
 
+/// Services that publish masks (the segmenter and the propagator).
+const MASK_PUBLISHERS: u64 = 2;
+
+/// Bytes of shared memory the run's frame and mask queues reserve: each
+/// publisher's segment holds a sample per place a subscriber can queue or
+/// borrow one, plus its history and its loan (measured: 65 samples of
+/// 640x480 RGB-D, 99.9 MB). The segments are sparse: pages are used as
+/// frames fill them, up to all of it on a long run.
+pub fn reserved_shm_bytes(max_frame_bytes: usize, max_mask_bytes: usize) -> u64 {
+    let samples = |t: Topic| {
+        let q = qos(t);
+        (MAX_SUBSCRIBERS * (q.buffer + q.borrowed) + q.history + 1) as u64
+    };
+    samples(Topic::Frames) * max_frame_bytes as u64
+        + MASK_PUBLISHERS * samples(Topic::Masks) * max_mask_bytes as u64
+}
+
+/// Free bytes of the file system at `dir` (statvfs), None if unknown.
+pub fn free_bytes(dir: &Path) -> Option<u64> {
+    use std::os::unix::ffi::OsStrExt;
+    let c = std::ffi::CString::new(dir.as_os_str().as_bytes()).ok()?;
+    // SAFETY: statvfs(3) fills the zeroed struct; the path is NUL-terminated.
+    unsafe {
+        let mut st: libc::statvfs = std::mem::zeroed();
+        (libc::statvfs(c.as_ptr(), &mut st) == 0).then(|| st.f_bavail as u64 * st.f_frsize as u64)
+    }
+}
+
+/// Refuses a frame size whose queues /dev/shm cannot hold: a full tmpfs
+/// shows up as SIGBUS in whichever process touches the next page, long
+/// after the start.
+pub fn check_shm_capacity(
+    max_width: u32,
+    max_height: u32,
+    max_frame_bytes: usize,
+    max_mask_bytes: usize,
+) -> Result<()> {
+    let need = reserved_shm_bytes(max_frame_bytes, max_mask_bytes);
+    let shm = Path::new("/dev/shm");
+    let Some(free) = free_bytes(shm) else {
+        return Ok(()); // no /dev/shm to ask (iceoryx2 then reports its own error)
+    };
+    if need > free {
+        anyhow::bail!(
+            "run.max_width x run.max_height = {max_width}x{max_height}: the frame and mask queues need {:.1} MB of shared memory, /dev/shm has {:.1} MB free; lower run.max_width/max_height to the camera's size or give /dev/shm more room (mount -o remount,size=...)",
+            need as f64 / 1e6,
+            free as f64 / 1e6
+        );
+    }
+    Ok(())
+}
+
 /// The iceoryx2 configuration of one run: the default one with the run's
 /// file prefix.
 pub fn iceoryx_config(names: &RunNames) -> Result<Config> {
@@ -566,4 +618,33 @@ pub fn remove_run_files(names: &RunNames) -> Result<usize> {
             .with_context(|| format!("cannot remove stale file {}", f.display()))?;
     }
     Ok(files.len())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_reservation_matches_the_measured_segments_and_a_huge_frame_is_refused() {
+        // 640x480: 65 frame samples of 1.536 MB (the camera-reader's segment
+        // measured 99.86 MB) and 65 mask samples per mask publisher.
+        let frame = 640 * 480 * 5;
+        let mask = 640 * 480;
+        assert_eq!(
+            reserved_shm_bytes(frame, mask),
+            65 * frame as u64 + 2 * 65 * mask as u64
+        );
+        let free = free_bytes(Path::new("/dev/shm")).expect("/dev/shm is there");
+        // A frame size whose queues are twice what is free is refused, naming the keys.
+        let side = ((free as f64 / 455.0 * 2.0).sqrt() as u32).max(16);
+        let (f, m) = (
+            side as usize * side as usize * 5,
+            side as usize * side as usize,
+        );
+        let err = check_shm_capacity(side, side, f, m)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("run.max_width x run.max_height"), "{err}");
+        assert!(err.contains("/dev/shm has"), "{err}");
+    }
 }

@@ -185,6 +185,64 @@ impl FrameRow {
     }
 }
 
+/// Which frames `frames.csv` holds, without holding their rows: a long
+/// run's memory stays flat (the rows are read back from the file for the
+/// outputs at the end). Frames are recorded nearly in order, so a
+/// contiguous prefix plus the few recorded ahead of it is all there is.
+#[derive(Debug, Default)]
+pub struct RecordedFrames {
+    /// Every frame below this one is recorded.
+    prefix: u64,
+    ahead: std::collections::BTreeSet<u64>,
+    newest: Option<u64>,
+}
+
+impl RecordedFrames {
+    pub fn from_seqs(seqs: impl IntoIterator<Item = u64>) -> Self {
+        let mut r = Self::default();
+        for s in seqs {
+            r.insert(s);
+        }
+        r
+    }
+
+    pub fn contains(&self, seq: u64) -> bool {
+        seq < self.prefix || self.ahead.contains(&seq)
+    }
+
+    /// Notes `seq` as recorded; false if it already was.
+    pub fn insert(&mut self, seq: u64) -> bool {
+        if self.contains(seq) {
+            return false;
+        }
+        self.ahead.insert(seq);
+        while self.ahead.remove(&self.prefix) {
+            self.prefix += 1;
+        }
+        self.newest = Some(self.newest.map_or(seq, |n| n.max(seq)));
+        true
+    }
+
+    /// How many frames are recorded.
+    pub fn len(&self) -> u64 {
+        self.prefix + self.ahead.len() as u64
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The first frame not recorded yet.
+    pub fn first_missing(&self) -> u64 {
+        self.prefix
+    }
+
+    /// The highest recorded frame.
+    pub fn newest(&self) -> Option<u64> {
+        self.newest
+    }
+}
+
 /// Append-only writer of `frames.csv`.
 pub struct FrameLog {
     file: File,
@@ -198,38 +256,13 @@ impl FrameLog {
         let path = run_dir.join(FRAMES_CSV);
         let mut rows = Vec::new();
         if path.exists() {
-            let text =
-                std::fs::read(&path).with_context(|| format!("cannot read {}", path.display()))?;
-            let complete = text
-                .iter()
-                .rposition(|&b| b == b'\n')
-                .map(|i| i + 1)
-                .unwrap_or(0);
-            if complete < text.len() {
+            let (r, complete, len) = read_complete_rows(&path)?;
+            if complete < len {
                 tracing::warn!("{}: dropping a half-written last line", path.display());
                 let f = OpenOptions::new().write(true).open(&path)?;
                 f.set_len(complete as u64)?;
             }
-            let mut reader = csv::ReaderBuilder::new().from_reader(&text[..complete]);
-            let header: Vec<String> = reader
-                .headers()
-                .with_context(|| format!("cannot read {}", path.display()))?
-                .iter()
-                .map(String::from)
-                .collect();
-            if complete > 0 && header.join(",") != HEADER {
-                bail!(
-                    "{}: unexpected header line; not a frames file of this dynslam version",
-                    path.display()
-                );
-            }
-            for record in reader.deserialize::<CsvRow>() {
-                let row = record.map_err(|e| {
-                    let line = e.position().map_or(0, |p| p.line());
-                    anyhow::anyhow!("{} line {line}: {e}", path.display())
-                })?;
-                rows.push(row.into());
-            }
+            rows = r;
         }
         let mut file = OpenOptions::new()
             .create(true)
@@ -249,6 +282,58 @@ impl FrameLog {
             .write_all(line.as_bytes())
             .with_context(|| format!("cannot write {}", self.path.display()))
     }
+}
+
+/// The rows of a run's `frames.csv` in frame order (the last row of a
+/// frame wins); a half-written last line is left out.
+pub fn read_rows(run_dir: &Path) -> Result<Vec<FrameRow>> {
+    let path = run_dir.join(FRAMES_CSV);
+    if !path.exists() {
+        return Ok(Vec::new());
+    }
+    let mut rows = read_complete_rows(&path)?.0;
+    rows.sort_by_key(|r| r.seq);
+    rows.dedup_by(|later, earlier| {
+        let same = later.seq == earlier.seq;
+        if same {
+            std::mem::swap(later, earlier);
+        }
+        same
+    });
+    Ok(rows)
+}
+
+/// The rows of the complete lines of `path`, the length of those lines
+/// and the file's length.
+fn read_complete_rows(path: &Path) -> Result<(Vec<FrameRow>, usize, usize)> {
+    let text = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let complete = text
+        .iter()
+        .rposition(|&b| b == b'\n')
+        .map(|i| i + 1)
+        .unwrap_or(0);
+    let mut reader = csv::ReaderBuilder::new().from_reader(&text[..complete]);
+    let header: Vec<String> = reader
+        .headers()
+        .with_context(|| format!("cannot read {}", path.display()))?
+        .iter()
+        .map(String::from)
+        .collect();
+    if complete > 0 && header.join(",") != HEADER {
+        bail!(
+            "{}: unexpected header line; not a frames file of this dynslam version",
+            path.display()
+        );
+    }
+    let mut rows = Vec::new();
+    for record in reader.deserialize::<CsvRow>() {
+        let row = record.map_err(|e| {
+            let line = e.position().map_or(0, |p| p.line());
+            anyhow::anyhow!("{} line {line}: {e}", path.display())
+        })?;
+        rows.push(row.into());
+    }
+    Ok((rows, complete, text.len()))
 }
 
 /// Writes a TUM trajectory (`timestamp tx ty tz qx qy qz qw`) of the rows
@@ -310,6 +395,46 @@ mod tests {
             .unwrap()
             .unwrap()
             .into()
+    }
+
+    #[test]
+    fn recorded_frames_keep_a_prefix_and_the_few_ahead_of_it() {
+        let mut r = RecordedFrames::from_seqs([0, 1, 2, 5]);
+        assert_eq!((r.len(), r.first_missing(), r.newest()), (4, 3, Some(5)));
+        assert!(r.contains(1) && r.contains(5) && !r.contains(3) && !r.contains(6));
+        assert!(!r.insert(5), "recorded once");
+        assert!(r.insert(4) && r.insert(3));
+        assert_eq!((r.len(), r.first_missing()), (6, 6));
+        assert!(r.ahead.is_empty(), "nothing held once contiguous");
+        assert!(r.insert(2_000_000));
+        assert_eq!((r.len(), r.newest()), (7, Some(2_000_000)));
+    }
+
+    #[test]
+    fn read_rows_orders_by_frame_and_leaves_out_a_half_written_line() {
+        let dir = std::env::temp_dir().join(format!("dynslam-readrows-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let (mut log, old) = FrameLog::open(&dir).unwrap();
+        assert!(old.is_empty());
+        for seq in [1u64, 0, 2] {
+            log.append(&row(seq)).unwrap();
+        }
+        let mut f = OpenOptions::new()
+            .append(true)
+            .open(dir.join(FRAMES_CSV))
+            .unwrap();
+        f.write_all(b"3,1.5,ok").unwrap();
+        let rows = read_rows(&dir).unwrap();
+        assert_eq!(
+            rows.iter().map(|r| r.seq).collect::<Vec<_>>(),
+            vec![0, 1, 2]
+        );
+        assert_eq!(
+            (rows[1].timestamp, rows[1].pose),
+            (row(1).timestamp, row(1).pose)
+        );
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]

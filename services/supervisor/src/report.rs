@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use camera_reader::source::{configured_frames, FrameEntry, MaskList};
-use image::{imageops, GrayImage, Rgb, RgbImage};
+use image::{imageops, Rgb, RgbImage};
 use pipeline::config::PipelineConfig;
 use plotters::style::RGBColor;
 use serde::Serialize;
@@ -20,7 +20,7 @@ use slam_core::eval::{evaluate, Alignment, EvalOptions, EvalSummary};
 use slam_core::io::trajectory::Trajectory;
 
 use crate::latency::{self, StageSummary, STAGES};
-use crate::mask_record::{mask_file, read_rows, MaskRow};
+use crate::mask_record::{mask_file, read_ious, read_rows, MaskRow, MIN_PERSON_PX};
 use crate::outputs::FrameRow;
 use crate::plots::{self, Chart, Histogram, Level, Series, Style, BLUE, GREEN, GREY, RED};
 
@@ -30,10 +30,6 @@ pub const PLOTS_DIR: &str = "plots";
 
 /// The world frame of the trajectories and the map, in words.
 pub const WORLD_FRAME: &str = "Poses (`trajectory.txt`, `frames.csv`) and `map.ply` are in the world frame of the SLAM map: the optical frame of the camera at the first tracked frame (x right, y down, z forward, metres), or the loaded map's (`--load-map`); a pose is camera-to-world. The accuracy figures align the estimate to the ground truth first (SE(3); Sim(3) for a monocular map).";
-
-/// A ground-truth person is scored where it covers at least this many
-/// pixels (as `dynslam masks-eval`'s default).
-const MIN_PERSON_PX: usize = 2000;
 
 /// Mask quality of a run against ground-truth masks.
 #[derive(Debug, Clone, Serialize, PartialEq)]
@@ -155,7 +151,7 @@ pub fn write(
     let truth = MaskList::open(dataset).ok().flatten();
     let (scores, ious) = match &truth {
         Some(t) => {
-            let (s, i) = mask_scores(run_dir, rows, &mask_rows, t);
+            let (s, i) = mask_scores(run_dir, rows, &mask_rows, t)?;
             (Some(s), i)
         }
         None => (None, Vec::new()),
@@ -427,7 +423,7 @@ pub fn write(
         writeln!(md, "- `{}`: the same frames as the final map stands, loop corrections applied (TUM format)", crate::run::CORRECTED_TRAJECTORY_FILE)?;
     }
     writeln!(md, "- `frames.csv`: one row per frame (state, route, pose, features, features removed by masks, inliers, stage timestamps)")?;
-    writeln!(md, "- `masks/`, `masks.csv`: the label image SLAM got for each frame (0 background, i+1 instance i)")?;
+    writeln!(md, "- `masks.csv`: one row per set of masks SLAM got (source, instances, masked pixels); `masks/`: their label images (0 background, i+1 instance i) as `run.save_masks` keeps them (default: the segmenter's); `mask_iou.csv`: each set's per-person IoU where the dataset has ground-truth masks")?;
     let map = run_dir.join(crate::run::MAP_FILE);
     match slam_core::io::ply::read_ply(&map) {
         Ok(points) => writeln!(
@@ -561,35 +557,31 @@ type FrameIou = (u64, String, f64);
 
 /// Per-person IoU of the masks the run used against the ground truth, per
 /// frame with a person (a frame without masks scores 0 for each person).
+/// The masks were scored as they were recorded (`mask_iou.csv`): the run
+/// folder need not keep their images.
 fn mask_scores(
     run_dir: &Path,
     rows: &[FrameRow],
     mask_rows: &[MaskRow],
     truth: &MaskList,
-) -> (MaskScores, Vec<FrameIou>) {
-    let source_of: std::collections::HashMap<u64, &str> = mask_rows
-        .iter()
-        .map(|m| (m.seq, m.source.as_str()))
-        .collect();
+) -> Result<(MaskScores, Vec<FrameIou>)> {
+    let masked: std::collections::HashSet<u64> = mask_rows.iter().map(|m| m.seq).collect();
+    let scored = read_ious(run_dir)?;
     let mut ious: Vec<FrameIou> = Vec::new();
     for r in rows {
+        if masked.contains(&r.seq) {
+            // A set of masks the recorder skipped (it fell behind) has no scores.
+            for p in scored.get(&r.seq).into_iter().flatten() {
+                ious.push((r.seq, p.source.clone(), p.iou));
+            }
+            continue;
+        }
         let Ok(gt) = truth.load_at(r.timestamp) else {
             continue;
         };
-        let source = source_of.get(&r.seq).copied().unwrap_or("none");
-        let predicted: GrayImage = if source == "none" {
-            GrayImage::new(gt.width(), gt.height())
-        } else {
-            match image::open(mask_file(run_dir, r.seq)) {
-                Ok(i) => i.into_luma8(),
-                Err(_) => continue,
-            }
-        };
-        if predicted.dimensions() != gt.dimensions() {
-            continue;
-        }
-        for s in scenes::truth::instance_ious(predicted.as_raw(), gt.as_raw(), MIN_PERSON_PX) {
-            ious.push((r.seq, source.to_string(), s.iou));
+        let none = vec![0u8; gt.as_raw().len()];
+        for s in scenes::truth::instance_ious(&none, gt.as_raw(), MIN_PERSON_PX) {
+            ious.push((r.seq, "none".to_string(), s.iou));
         }
     }
     let mean = |src: Option<&str>| {
@@ -604,7 +596,7 @@ fn mask_scores(
     let (segmenter_iou, segmenter_samples) = mean(Some("segmenter"));
     let (propagator_iou, propagator_samples) = mean(Some("propagator"));
     let (all_frames_iou, all_frames_samples) = mean(None);
-    (
+    Ok((
         MaskScores {
             segmenter_iou,
             segmenter_samples,
@@ -614,7 +606,7 @@ fn mask_scores(
             all_frames_samples,
         },
         ious,
-    )
+    ))
 }
 
 /// Six frames in a 3x2 grid at half size, masks tinted by source, ground
@@ -626,9 +618,10 @@ fn mask_strip(
     mask_rows: &[MaskRow],
     truth: Option<&MaskList>,
 ) -> Result<RgbImage> {
+    // Frames whose mask image the run kept (`run.save_masks`).
     let with_masks: Vec<u64> = mask_rows
         .iter()
-        .filter(|m| m.masked_px > 0)
+        .filter(|m| m.masked_px > 0 && m.saved)
         .map(|m| m.seq)
         .collect();
     let pool: Vec<u64> = if with_masks.len() >= 6 {

@@ -1,7 +1,7 @@
 //! The supervisor's run loop: start the services, route every frame, record
 //! every Track, restart what dies, stop everything in order, write outputs.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::Child;
@@ -28,7 +28,7 @@ use crate::children::{
 };
 use crate::latency;
 use crate::mask_record::MaskRecorder;
-use crate::outputs::{write_tum, FrameLog, FrameRow};
+use crate::outputs::{write_tum, FrameLog, FrameRow, RecordedFrames};
 use crate::routing::{Availability, Router};
 use crate::run_dir::{self, ChildStatus, Status};
 
@@ -120,6 +120,8 @@ struct Pending {
     route: Option<RouteKind>,
     /// When the route was sent (real time: frames in flight are bounded).
     routed_at: Option<Instant>,
+    /// A set of masks for the frame was published (the watchdog's clue).
+    masks_seen: bool,
     note: String,
 }
 
@@ -200,7 +202,8 @@ struct Supervisor {
     run_dir: PathBuf,
     services: Vec<Service>,
     log: FrameLog,
-    rows: BTreeMap<u64, FrameRow>,
+    /// The frames `frames.csv` holds (their rows stay in the file).
+    recorded: RecordedFrames,
     pending: HashMap<u64, Pending>,
     router: Router,
     next_seq: u64,
@@ -208,6 +211,9 @@ struct Supervisor {
     restarts: u64,
     status_dirty: bool,
     fatal: Option<String>,
+    /// When a frame was last recorded (or a service last came up): the
+    /// watchdog's clock.
+    last_progress: Instant,
 }
 
 impl Supervisor {
@@ -287,21 +293,20 @@ impl Supervisor {
 
     /// Records the fate of one frame (once).
     fn record(&mut self, row: FrameRow) -> Result<()> {
-        if self.rows.contains_key(&row.seq) {
+        if self.recorded.contains(row.seq) {
             return Ok(());
         }
         self.log.append(&row)?;
+        self.last_progress = Instant::now();
         self.pending.remove(&row.seq);
-        self.rows.insert(row.seq, row);
-        while self.rows.contains_key(&self.next_seq) {
-            self.next_seq += 1;
-        }
+        self.recorded.insert(row.seq);
+        self.next_seq = self.recorded.first_missing();
         self.status_dirty = true;
         Ok(())
     }
 
     fn on_track(&mut self, t: Track) -> Result<()> {
-        if self.rows.contains_key(&t.seq) {
+        if self.recorded.contains(t.seq) {
             return Ok(());
         }
         let received = now_ns();
@@ -409,7 +414,7 @@ impl Supervisor {
             self.status_dirty = true;
             return Ok(());
         }
-        if self.rows.contains_key(&h.seq) {
+        if self.recorded.contains(h.seq) {
             return Ok(());
         }
         let bad = h.has(frame_flags::BAD_INPUT);
@@ -419,6 +424,7 @@ impl Supervisor {
             stamps: h.stamps,
             route: None,
             routed_at: None,
+            masks_seen: false,
             note: if bad {
                 format!("bad input: {}", read_error_text(&h.error))
             } else {
@@ -436,11 +442,7 @@ impl Supervisor {
             return send_route(routes, h.seq, kind, h.stamps, h.has(frame_flags::REPLAY));
         }
         let late = self.config.run.mode == ClockMode::Realtime
-            && self
-                .rows
-                .keys()
-                .next_back()
-                .is_some_and(|&newest| newest > h.seq);
+            && self.recorded.newest().is_some_and(|newest| newest > h.seq);
         if late {
             // SLAM only moves forward: a frame older than a tracked one that
             // reaches us late is already dropped.
@@ -483,7 +485,7 @@ impl Supervisor {
             room = REALTIME_IN_FLIGHT.saturating_sub(in_flight);
         }
         for seq in waiting {
-            if lockstep && seq > 0 && !self.rows.contains_key(&(seq - 1)) {
+            if lockstep && seq > 0 && !self.recorded.contains(seq - 1) {
                 break;
             }
             if room == 0 {
@@ -667,7 +669,7 @@ impl Supervisor {
             run_id: self.names.run_id().to_string(),
             supervisor_pid: std::process::id(),
             restarts: self.restarts,
-            frames_done: self.rows.len() as u64,
+            frames_done: self.recorded.len(),
             frames_total: self.total,
             children: self
                 .services
@@ -731,6 +733,65 @@ impl Supervisor {
 
     fn complete(&self) -> bool {
         self.total.is_some_and(|t| self.next_seq >= t)
+    }
+
+    /// The watchdog: every service is up, frames are due, yet none has been
+    /// recorded for `supervisor.stall_timeout_s`. The oldest pending frame
+    /// says which stage holds it; that service is killed (and restarted like
+    /// a crash, so lockstep replays the frame), with the stage in the log.
+    /// A stall no service explains fails the run with the same words.
+    fn check_stall(&mut self) {
+        let timeout = self.config.supervisor.stall_timeout_s;
+        if timeout == 0
+            || self.complete()
+            || self.last_progress.elapsed() < Duration::from_secs(timeout)
+            || !self
+                .services
+                .iter()
+                .all(|s| matches!(s.state, SvcState::Ready | SvcState::Failed { .. }))
+        {
+            return;
+        }
+        let oldest = self.pending.iter().min_by_key(|(&seq, _)| seq);
+        let (kind, what) = match oldest {
+            None => (
+                Some(ServiceKind::CameraReader),
+                format!("no frame after {} reached the supervisor", self.next_seq),
+            ),
+            Some((&seq, p)) => {
+                let held_by = match p.route {
+                    // Real time routes nothing before the first segmenter result.
+                    None if self.config.run.mode == ClockMode::Realtime => {
+                        Some(ServiceKind::Segmenter)
+                    }
+                    None => None,
+                    Some(RouteKind::Skip) => Some(ServiceKind::Slam),
+                    Some(_) if p.masks_seen => Some(ServiceKind::Slam),
+                    Some(RouteKind::Segment) => Some(ServiceKind::Segmenter),
+                    Some(_) => Some(ServiceKind::Propagator),
+                };
+                let route = p.route.map_or("not routed", |r| r.as_str());
+                let stage = match held_by {
+                    Some(ServiceKind::Slam) => "waiting for its Track from slam",
+                    Some(ServiceKind::Segmenter) => "waiting for its masks from the segmenter",
+                    Some(ServiceKind::Propagator) => "waiting for its masks from the propagator",
+                    _ => "waiting for its route",
+                };
+                (held_by, format!("frame {seq} (route {route}) is {stage}"))
+            }
+        };
+        let why = format!("no frame recorded for {timeout} s (supervisor.stall_timeout_s): {what}");
+        match kind.and_then(|k| self.svc(k).pid().map(|pid| (k, pid))) {
+            Some((k, pid)) => {
+                tracing::error!(
+                    "stalled: {why}; killing {} (pid {pid}) to restart it",
+                    k.as_str()
+                );
+                signal(pid, libc::SIGKILL);
+                self.last_progress = Instant::now();
+            }
+            None => self.fatal = Some(format!("the run stalled: {why}")),
+        }
     }
 }
 
@@ -808,7 +869,7 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
         run_dir: run_dir.clone(),
         services,
         log,
-        rows: old_rows.into_iter().map(|r| (r.seq, r)).collect(),
+        recorded: RecordedFrames::from_seqs(old_rows.iter().map(|r| r.seq)),
         pending: HashMap::new(),
         router,
         next_seq: 0,
@@ -816,13 +877,33 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
         restarts: run_dir::restart_count(&run_dir),
         status_dirty: true,
         fatal: None,
+        last_progress: Instant::now(),
         config,
     };
-    while sup.rows.contains_key(&sup.next_seq) {
-        sup.next_seq += 1;
+    sup.next_seq = sup.recorded.first_missing();
+    drop(old_rows);
+    let c = &sup.config;
+    if let Err(e) = pipeline::transport::check_shm_capacity(
+        c.run.max_width,
+        c.run.max_height,
+        c.max_frame_bytes(),
+        c.max_mask_bytes(),
+    ) {
+        return Err(fail_run(&mut sup, &names, e));
     }
 
-    let interrupted = supervise(&mut sup)?;
+    let interrupted = match supervise(&mut sup) {
+        Ok(i) => i,
+        Err(e) => {
+            // An error path cleans up like the normal one: the services
+            // stopped, the status says why, nothing left in /dev/shm.
+            sup.stop_all();
+            if let Err(w) = sup.watch_children(true) {
+                tracing::warn!("while stopping the services: {w:#}");
+            }
+            return Err(fail_run(&mut sup, &names, e));
+        }
+    };
     let degraded = sup.degraded();
     let (state, error) = if let Some(fatal) = &sup.fatal {
         ("failed", Some(fatal.clone()))
@@ -833,22 +914,42 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
     } else {
         ("completed", None)
     };
-    sup.write_status(state, error);
-
-    // Every process of the run is gone: nothing of it may stay in /dev/shm.
-    cleanup_dead_nodes(&names)?;
-    let left = run_files(&names)?;
-    if !left.is_empty() {
-        // Normally only iceoryx2's global management segment, which outlives
-        // the last node by design; anything else is a killed process's.
-        tracing::debug!(files = ?left, "removing the run's remaining iceoryx2 files");
-        remove_run_files(&names)?;
+    if let Err(e) = remove_shared_memory(&names) {
+        return Err(fail_run(&mut sup, &names, e));
     }
-    let summary = finish_outputs(&sup, interrupted, degraded)?;
+    let summary = match finish_outputs(&sup, interrupted, degraded) {
+        Ok(s) => s,
+        Err(e) => return Err(fail_run(&mut sup, &names, e)),
+    };
+    // Written last: `completed` means the outputs are on disk.
+    sup.write_status(state, error);
     if let Some(fatal) = sup.fatal {
         bail!("{fatal}");
     }
     Ok(summary)
+}
+
+/// Every process of the run is gone: nothing of it may stay in /dev/shm.
+fn remove_shared_memory(names: &RunNames) -> Result<()> {
+    cleanup_dead_nodes(names)?;
+    let left = run_files(names)?;
+    if !left.is_empty() {
+        // Normally only iceoryx2's global management segment, which outlives
+        // the last node by design; anything else is a killed process's.
+        tracing::debug!(files = ?left, "removing the run's remaining iceoryx2 files");
+        remove_run_files(names)?;
+    }
+    Ok(())
+}
+
+/// Ends a run on `error` (its services already stopped): `status.json`
+/// says `failed` with the error, the run's shared memory is removed.
+fn fail_run(sup: &mut Supervisor, names: &RunNames, error: anyhow::Error) -> anyhow::Error {
+    sup.write_status("failed", Some(format!("{error:#}")));
+    if let Err(e) = remove_shared_memory(names) {
+        tracing::warn!("cannot remove the run's shared memory: {e:#}");
+    }
+    error
 }
 
 /// The event loop; returns true when interrupted by SIGINT/SIGTERM.
@@ -863,7 +964,16 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
     let frames = transport.slice_receiver::<FrameHeader>(Topic::Frames)?;
     let tracks = transport.receiver::<Track>(Topic::Tracks)?;
     let masks = transport.slice_receiver::<MasksHeader>(Topic::Masks)?;
-    let mut recorder = MaskRecorder::start(&sup.run_dir)?;
+    let truth = match camera_reader::source::MaskList::open(&sup.config.source.path) {
+        Ok(Some(masks)) => camera_reader::source::configured_frames(&sup.config.source)
+            .ok()
+            .map(|frames| crate::mask_record::Truth {
+                masks,
+                timestamps: frames.iter().map(|f| f.timestamp).collect(),
+            }),
+        _ => None,
+    };
+    let mut recorder = MaskRecorder::start(&sup.run_dir, sup.config.run.save_masks, truth)?;
     let lifecycle = transport.receiver::<Lifecycle>(Topic::Lifecycle)?;
     let routes = transport.sender::<Route>(Topic::Routes)?;
     let control = transport.sender::<Control>(Topic::Control)?;
@@ -888,7 +998,7 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
         .map(|f| f.len() as u64)
         .unwrap_or(0);
     let mut progress = Progress::new("frames", expected);
-    let mut shown = 0usize;
+    let mut shown = 0u64;
     let mut last_sweep = Instant::now();
     let mut end_seen_at: Option<Instant> = None;
     let mut interrupted = false;
@@ -909,6 +1019,7 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
             let was_restart = svc.restarts > 0;
             svc.state = SvcState::Ready;
             sup.status_dirty = true;
+            sup.last_progress = Instant::now();
             tracing::info!("{} ready (pid {})", kind.as_str(), msg.pid);
             // Lockstep recovery: the in-flight frame may have been lost with
             // the dead process; the reader publishes it again.
@@ -945,6 +1056,9 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
                     if view.source() == MaskSource::Segmenter {
                         sup.router.on_segmenter_result(view.header.seq);
                     }
+                    if let Some(p) = sup.pending.get_mut(&view.header.seq) {
+                        p.masks_seen = true;
+                    }
                     recorder.record(&view)
                 }
                 Err(e) => tracing::warn!("not recording masks: {e:#}"),
@@ -974,6 +1088,7 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
                 sup.fatal = Some(reason.clone());
             }
         }
+        sup.check_stall();
         if sup.fatal.is_some() {
             break;
         }
@@ -981,9 +1096,9 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
             cleanup_dead_nodes(&sup.names)?;
             last_sweep = Instant::now();
         }
-        if expected > 0 && sup.rows.len() != shown {
-            shown = sup.rows.len();
-            progress.set(shown as u64);
+        if expected > 0 && sup.recorded.len() != shown {
+            shown = sup.recorded.len();
+            progress.set(shown);
         }
         if sup.complete() {
             break;
@@ -993,7 +1108,7 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
             let seen = *end_seen_at.get_or_insert_with(Instant::now);
             if !lockstep && seen.elapsed() > Duration::from_secs(2) {
                 for seq in sup.next_seq..total {
-                    if !sup.rows.contains_key(&seq) {
+                    if !sup.recorded.contains(seq) {
                         sup.record_dropped(seq, "not tracked before the end of the stream")?;
                     }
                 }
@@ -1020,8 +1135,8 @@ fn finish_outputs(
     interrupted: bool,
     degraded: Vec<String>,
 ) -> Result<RunSummary> {
-    let rows: Vec<FrameRow> = sup.rows.values().cloned().collect();
     let dir = &sup.run_dir;
+    let rows = crate::outputs::read_rows(dir)?;
     let tracked = write_tum(&dir.join("trajectory.txt"), &rows, FrameRow::is_tracked)?;
     write_tum(&dir.join("keyframes.txt"), &rows, |r| {
         r.keyframe && r.is_tracked()

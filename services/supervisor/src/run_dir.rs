@@ -177,11 +177,20 @@ pub fn read_status(dir: &Path) -> Option<Status> {
 }
 
 /// Writes `status.json` via a temporary file and a rename, so readers never
-/// see a half-written file.
+/// see a half-written file. When the temporary cannot be written (a full
+/// disk) it is removed and the file is rewritten in place: the pages the
+/// old status frees are the ones the new one needs, and a run that fails
+/// for want of space must still say so.
 pub fn write_status(dir: &Path, status: &Status) -> Result<()> {
+    let text = serde_json::to_string_pretty(status)?;
+    let path = dir.join(STATUS_FILE);
     let tmp = dir.join(format!("{STATUS_FILE}.tmp"));
-    std::fs::write(&tmp, serde_json::to_string_pretty(status)?)?;
-    std::fs::rename(&tmp, dir.join(STATUS_FILE))?;
+    let replaced = std::fs::write(&tmp, &text).and_then(|()| std::fs::rename(&tmp, &path));
+    if let Err(e) = replaced {
+        let _ = std::fs::remove_file(&tmp);
+        std::fs::write(&path, &text)
+            .with_context(|| format!("cannot write {} ({e})", path.display()))?;
+    }
     Ok(())
 }
 

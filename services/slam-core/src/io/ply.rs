@@ -15,8 +15,17 @@ pub struct ColouredPoint {
 /// never sees half a map.
 pub fn write_ply(path: &Path, points: &[ColouredPoint]) -> std::io::Result<()> {
     let tmp = path.with_extension("ply.tmp");
+    let written = write_ply_to(&tmp, points).and_then(|()| std::fs::rename(&tmp, path));
+    if written.is_err() {
+        // A full disk leaves no half-written temporary behind.
+        let _ = std::fs::remove_file(&tmp);
+    }
+    written
+}
+
+fn write_ply_to(tmp: &Path, points: &[ColouredPoint]) -> std::io::Result<()> {
     {
-        let mut f = std::io::BufWriter::new(std::fs::File::create(&tmp)?);
+        let mut f = std::io::BufWriter::new(std::fs::File::create(tmp)?);
         write!(
             f,
             "ply\nformat ascii 1.0\ncomment dynslam map (world frame, metres)\n\
@@ -31,7 +40,7 @@ pub fn write_ply(path: &Path, points: &[ColouredPoint]) -> std::io::Result<()> {
         }
         f.flush()?;
     }
-    std::fs::rename(&tmp, path)
+    Ok(())
 }
 
 /// Reads back the vertices of a file `write_ply` wrote (tests, reports).

@@ -462,8 +462,10 @@ impl Map {
         self.database.remove(k);
         let kf = &mut self.keyframes[k];
         kf.culled = true;
+        // Taken, not cleared: a culled keyframe keeps only its pose and
+        // graph place (stable ids), not the capacity of its measurements.
         let points = std::mem::take(&mut kf.points);
-        kf.measurements.clear();
+        kf.measurements = Vec::new();
         kf.spare = Vec::new();
         let edges = std::mem::take(&mut kf.covisible);
         let parent = kf.parent;

@@ -52,6 +52,9 @@ evo:
         python3 -m venv "$venv"
         "$venv/bin/pip" install --quiet --disable-pip-version-check evo==1.38.1
     fi
+    # evo makes its settings folder (~/.evo) on first use; two tests starting
+    # it at once on a fresh machine race for the mkdir (FileExistsError).
+    "$venv/bin/evo_config" show > /dev/null
 
 # iceoryx2's Python binding (PyPI, the version of our crate) in the repo's ignored .cache, for the pose-stream example and its test.
 pyiceoryx2:

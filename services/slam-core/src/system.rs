@@ -504,7 +504,7 @@ impl System {
         }
         let wanted = !self.localize_only
             && self.pending_keyframe.is_none()
-            && self.tracking.need_keyframe(tracked, frame);
+            && self.tracking.need_keyframe(tracked, frame, &self.map);
         if wanted && timing == KeyframeTiming::Now {
             self.tracking.insert_keyframe(
                 &mut self.map,

@@ -92,6 +92,11 @@ struct Args {
     /// more).
     #[arg(long)]
     features: Option<usize>,
+    /// Play the frames this many times in a row (later passes' timestamps go
+    /// on after the first's): a camera that comes back over its path, to
+    /// see whether the map stays bounded. ATE is over the first pass.
+    #[arg(long, default_value_t = 1)]
+    repeat: u32,
     /// Monocular: colour only (the depth files are ignored); ATE after a
     /// Sim(3) alignment, with the scale found.
     #[arg(long)]
@@ -143,6 +148,15 @@ fn main() -> Result<()> {
     if let Some(n) = args.limit {
         frames.truncate(n);
     }
+    anyhow::ensure!(
+        (1..=1000).contains(&args.repeat),
+        "--repeat {}: not a number of passes (1..=1000)",
+        args.repeat
+    );
+    let pass_len = frames.len();
+    let first_pass: Vec<f64> = frames.iter().map(|f| f.timestamp).collect();
+    let frames = camera_reader::source::repeated(frames, args.repeat);
+    let mut inserted_per_pass = vec![0usize; args.repeat as usize];
     let truth = if args.masks {
         Some(
             MaskList::open(&args.dataset)?
@@ -209,7 +223,7 @@ fn main() -> Result<()> {
     let mut tracked = 0;
     let mut relocalised = 0;
     let mut progress = Progress::new("slam", frames.len() as u64);
-    for f in &frames {
+    for (i, f) in frames.iter().enumerate() {
         let rgb = image::open(&f.rgb)
             .with_context(|| f.rgb.display().to_string())?
             .to_rgb8();
@@ -225,7 +239,7 @@ fn main() -> Result<()> {
         };
         let mask = match &truth {
             Some(t) => Some(
-                t.load_at(f.timestamp)
+                t.load_at(first_pass[i % pass_len])
                     .map_err(anyhow::Error::msg)?
                     .into_raw(),
             ),
@@ -247,6 +261,7 @@ fn main() -> Result<()> {
         if r.counts.mapping_us > 0 {
             mapping.push(r.counts.mapping_us as f64 / 1e3);
         }
+        inserted_per_pass[i / pass_len] += r.keyframe_inserted as usize;
         extract.push(r.extract_ms);
         track.push(r.track_ms);
         total.push(r.extract_ms + r.track_ms);
@@ -256,7 +271,7 @@ fn main() -> Result<()> {
         relocalised += (r.state == slam_core::TrackingState::Relocalised) as usize;
         // Tracked frames only (as the pipeline's trajectory.txt): an
         // untracked frame's pose is a guess.
-        if r.state.is_tracked() {
+        if r.state.is_tracked() && i < pass_len {
             trajectory.stamps.push(f.timestamp);
             trajectory.poses.push(r.pose_wc);
         }
@@ -306,6 +321,9 @@ fn main() -> Result<()> {
         map.points.len(),
         map.live_point_count()
     );
+    if args.repeat > 1 {
+        println!("keyframes inserted per pass: {inserted_per_pass:?}");
+    }
     println!(
         "local mapping: {} points triangulated, {} duplicates fused, {} observations added",
         mapped.triangulated, mapped.fused, mapped.observations_added

@@ -72,6 +72,33 @@ fn start_supervisor(args: &[&str], log: &Path) -> Child {
         .unwrap()
 }
 
+/// `dynslam run DATASET` into `dir/runs/<run_id>` in the background, and
+/// the `dynslam resume` arguments a storm restarts it with.
+fn start_storm_run(
+    dataset: &Path,
+    config: &Path,
+    dir: &Path,
+    run_id: &str,
+    log: &Path,
+) -> (Child, Vec<String>) {
+    let runs = dir.join("runs");
+    let supervisor = start_supervisor(
+        &[
+            "run",
+            dataset.to_str().unwrap(),
+            "--config",
+            config.to_str().unwrap(),
+            "--output-dir",
+            runs.to_str().unwrap(),
+            "--run-id",
+            run_id,
+        ],
+        log,
+    );
+    let resume = vec!["resume".into(), runs.join(run_id).display().to_string()];
+    (supervisor, resume)
+}
+
 /// The run a kill storm strikes.
 struct StormRun<'a> {
     run_dir: &'a Path,
@@ -258,21 +285,7 @@ fn kill_any_service_at_any_moment_and_the_run_completes() {
          [supervisor]\nrestart_backoff_initial_ms = 20\nrestart_backoff_max_ms = 160\nrestart_limit = 100\n",
     );
     let tum = shared_tum();
-    let run_args: Vec<String> = vec![
-        "run".into(),
-        tum.display().to_string(),
-        "--config".into(),
-        config.display().to_string(),
-        "--output-dir".into(),
-        dir.join("runs").display().to_string(),
-        "--run-id".into(),
-        run_id.clone(),
-    ];
-    let resume_args: Vec<String> = vec!["resume".into(), run_dir.display().to_string()];
-    let supervisor = start_supervisor(
-        &run_args.iter().map(String::as_str).collect::<Vec<_>>(),
-        &log,
-    );
+    let (supervisor, resume_args) = start_storm_run(&tum, &config, &dir, &run_id, &log);
 
     let Storm {
         mut supervisor,
@@ -370,21 +383,7 @@ fn the_real_slam_killed_again_and_again_goes_on_in_one_world_frame() {
     let run_id = format!("slamkill{}", std::process::id());
     let run_dir = dir.join("runs").join(&run_id);
     let log = dir.join("supervisor.log");
-    let run_args: Vec<String> = vec![
-        "run".into(),
-        tum.display().to_string(),
-        "--config".into(),
-        config.display().to_string(),
-        "--output-dir".into(),
-        dir.join("runs").display().to_string(),
-        "--run-id".into(),
-        run_id.clone(),
-    ];
-    let resume_args: Vec<String> = vec!["resume".into(), run_dir.display().to_string()];
-    let supervisor = start_supervisor(
-        &run_args.iter().map(String::as_str).collect::<Vec<_>>(),
-        &log,
-    );
+    let (supervisor, resume_args) = start_storm_run(&tum, &config, &dir, &run_id, &log);
     const SLAM_KILLS: u64 = 10;
     let others = ["camera-reader", "segmenter", "propagator", "supervisor"];
     let killed = |kills: &std::collections::HashMap<&'static str, u64>, k: &str| {
@@ -512,21 +511,7 @@ fn a_hundred_kills_of_every_kind_with_the_product_config() {
     let run_id = format!("storm{}", std::process::id());
     let run_dir = dir.join("runs").join(&run_id);
     let log = dir.join("supervisor.log");
-    let run_args: Vec<String> = vec![
-        "run".into(),
-        tum.display().to_string(),
-        "--config".into(),
-        config.display().to_string(),
-        "--output-dir".into(),
-        dir.join("runs").display().to_string(),
-        "--run-id".into(),
-        run_id.clone(),
-    ];
-    let resume_args: Vec<String> = vec!["resume".into(), run_dir.display().to_string()];
-    let supervisor = start_supervisor(
-        &run_args.iter().map(String::as_str).collect::<Vec<_>>(),
-        &log,
-    );
+    let (supervisor, resume_args) = start_storm_run(&tum, &config, &dir, &run_id, &log);
     const KILLS: u64 = 100;
     let started = Instant::now();
     let Storm {

@@ -231,6 +231,11 @@ fn lockstep(
 /// takes the cores the pipeline needs; a 60 fps PNG source costs most of one).
 const SOURCE_BACKLOG: u64 = 3;
 
+/// A decoded frame that no Track has passed for this long no longer counts
+/// towards the backlog: it was lost on the way (a worker restarted, a queue
+/// overflowed), and waiting for its Track would leave every later frame out.
+const BACKLOG_TIMEOUT_NS: u64 = 1_000_000_000;
+
 fn realtime(
     player: &Player,
     ws: &Waiter,
@@ -247,7 +252,8 @@ fn realtime(
         .map(|f| f.timestamp)
         .unwrap_or(0.0);
     let mut newest_tracked: Option<u64> = None;
-    let mut decoded: Vec<u64> = Vec::new();
+    // Frames decoded and published: (seq, when).
+    let mut decoded: Vec<(u64, u64)> = Vec::new();
     for seq in start_seq..total {
         let due = t0 + ((player.frames[seq as usize].timestamp - first_ts) / speed * 1e9) as u64;
         loop {
@@ -263,16 +269,18 @@ fn realtime(
         if let Some(t) = tracks.drain()?.iter().map(|t| t.seq).max() {
             newest_tracked = newest_tracked.max(Some(t));
         }
-        // Decoded frames newer than the newest tracked one; until SLAM
+        // Decoded frames newer than the newest tracked one (and younger
+        // than BACKLOG_TIMEOUT_NS); until SLAM
         // answers at all (models still warming up) nothing is left out.
-        if let Some(t) = newest_tracked {
-            decoded.retain(|&d| d > t);
-        }
+        let now = now_ns();
+        decoded.retain(|&(d, at)| {
+            newest_tracked.is_none_or(|t| d > t) && now.saturating_sub(at) < BACKLOG_TIMEOUT_NS
+        });
         if newest_tracked.is_some() && decoded.len() as u64 >= SOURCE_BACKLOG {
             player.publish_dropped(seq)?;
         } else {
             player.publish(seq, false)?;
-            decoded.push(seq);
+            decoded.push((seq, now_ns()));
         }
     }
     player.publish_end()?;

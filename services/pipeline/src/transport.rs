@@ -113,13 +113,9 @@ pub fn free_bytes(dir: &Path) -> Option<u64> {
 /// Refuses a frame size whose queues /dev/shm cannot hold: a full tmpfs
 /// shows up as SIGBUS in whichever process touches the next page, long
 /// after the start.
-pub fn check_shm_capacity(
-    max_width: u32,
-    max_height: u32,
-    max_frame_bytes: usize,
-    max_mask_bytes: usize,
-) -> Result<()> {
-    let need = reserved_shm_bytes(max_frame_bytes, max_mask_bytes);
+pub fn check_shm_capacity(config: &crate::config::PipelineConfig) -> Result<()> {
+    let (max_width, max_height) = (config.run.max_width, config.run.max_height);
+    let need = reserved_shm_bytes(config.max_frame_bytes(), config.max_mask_bytes());
     let shm = Path::new("/dev/shm");
     let Some(free) = free_bytes(shm) else {
         return Ok(()); // no /dev/shm to ask (iceoryx2 then reports its own error)
@@ -637,13 +633,9 @@ mod tests {
         let free = free_bytes(Path::new("/dev/shm")).expect("/dev/shm is there");
         // A frame size whose queues are twice what is free is refused, naming the keys.
         let side = ((free as f64 / 455.0 * 2.0).sqrt() as u32).max(16);
-        let (f, m) = (
-            side as usize * side as usize * 5,
-            side as usize * side as usize,
-        );
-        let err = check_shm_capacity(side, side, f, m)
-            .unwrap_err()
-            .to_string();
+        let mut config = crate::config::PipelineConfig::default();
+        (config.run.max_width, config.run.max_height) = (side, side);
+        let err = check_shm_capacity(&config).unwrap_err().to_string();
         assert!(err.contains("run.max_width x run.max_height"), "{err}");
         assert!(err.contains("/dev/shm has"), "{err}");
     }

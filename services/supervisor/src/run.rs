@@ -882,13 +882,7 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
     };
     sup.next_seq = sup.recorded.first_missing();
     drop(old_rows);
-    let c = &sup.config;
-    if let Err(e) = pipeline::transport::check_shm_capacity(
-        c.run.max_width,
-        c.run.max_height,
-        c.max_frame_bytes(),
-        c.max_mask_bytes(),
-    ) {
+    if let Err(e) = pipeline::transport::check_shm_capacity(&sup.config) {
         return Err(fail_run(&mut sup, &names, e));
     }
 
@@ -964,13 +958,18 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
     let frames = transport.slice_receiver::<FrameHeader>(Topic::Frames)?;
     let tracks = transport.receiver::<Track>(Topic::Tracks)?;
     let masks = transport.slice_receiver::<MasksHeader>(Topic::Masks)?;
-    let truth = match camera_reader::source::MaskList::open(&sup.config.source.path) {
-        Ok(Some(masks)) => camera_reader::source::configured_frames(&sup.config.source)
-            .ok()
-            .map(|frames| crate::mask_record::Truth {
-                masks,
-                timestamps: frames.iter().map(|f| f.timestamp).collect(),
-            }),
+    // The source's frames, listed once: the progress bar's length and the
+    // timestamps the ground-truth masks are looked up by.
+    let listed = camera_reader::source::configured_frames(&sup.config.source).ok();
+    let expected = listed.as_ref().map_or(0, |f| f.len() as u64);
+    let truth = match (
+        camera_reader::source::MaskList::open(&sup.config.source.path),
+        listed,
+    ) {
+        (Ok(Some(masks)), Some(frames)) => Some(crate::mask_record::Truth {
+            masks,
+            timestamps: frames.iter().map(|f| f.timestamp).collect(),
+        }),
         _ => None,
     };
     let mut recorder = MaskRecorder::start(&sup.run_dir, sup.config.run.save_masks, truth)?;
@@ -994,9 +993,6 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
     }
     // A progress bar over the frames the source will play (known up front
     // from its lists; the reader announces the exact end of the stream).
-    let expected = camera_reader::source::configured_frames(&sup.config.source)
-        .map(|f| f.len() as u64)
-        .unwrap_or(0);
     let mut progress = Progress::new("frames", expected);
     let mut shown = 0u64;
     let mut last_sweep = Instant::now();

@@ -11,7 +11,7 @@ people_front := ".cache/synth/fr1_rpy_people_front"
 build:
     cargo build --release --workspace
 
-# ONNX Runtime 1.31.1 from its PyPI wheel (pinned and verified) into .cache/onnxruntime; idempotent.
+# ONNX Runtime 1.31.1 from its PyPI wheel (pinned and verified) into .cache/onnxruntime, and the segmenter at 480/640 input into .cache/models; idempotent.
 setup:
     #!/usr/bin/env bash
     set -euo pipefail
@@ -26,6 +26,22 @@ setup:
         rm -rf .cache/wheels
     fi
     echo "$want  $lib" | sha256sum --check --quiet || { echo "error: $lib does not match its pinned sha256; delete it and run just setup again" >&2; exit 1; }
+    # The segmenter at 480 and 640 input: the shared 320 export rewritten by
+    # tools/yolo_input_size.py (Python onnx, pinned); deterministic, so pinned too.
+    models=.cache/models
+    if ! (cd "$models" 2>/dev/null && sha256sum --check --status ../../tools/yolo_input_size.sha256); then
+        venv=.cache/onnx-venv
+        if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c 'import onnx' 2>/dev/null; then
+            echo "installing onnx 1.19.1 (Python) into $venv (once)"
+            python3 -m venv "$venv"
+            "$venv/bin/pip" install --quiet --disable-pip-version-check onnx==1.19.1 numpy==2.4.6 protobuf==7.36.2
+        fi
+        mkdir -p "$models"
+        for size in 480 640; do
+            "$venv/bin/python" tools/yolo_input_size.py "{{shared}}/models/yolov8n-seg_f32.onnx" "$models/yolov8n-seg_f32_$size.onnx" --size "$size"
+        done
+        (cd "$models" && sha256sum --check --quiet ../../tools/yolo_input_size.sha256) || { echo "error: the rewritten segmenter models in $models do not match tools/yolo_input_size.sha256 (a different ../shared/models/yolov8n-seg_f32.onnx or onnx version?)" >&2; exit 1; }
+    fi
     (cd assets/vocabulary && sha256sum --check --quiet orb-k10-l4.vocab.sha256) || { echo "error: assets/vocabulary/orb-k10-l4.vocab does not match its pinned sha256; rebuild it with just vocab" >&2; exit 1; }
 
 # Retrain the shipped bag-of-words vocabulary (place recognition) from the shared TUM frames, and pin its sha256.
@@ -92,7 +108,7 @@ test: build setup evo fixtures pyiceoryx2
 eval gt est *args="": build
     ./target/release/dynslam eval --gt "{{gt}}" --est "{{est}}" {{args}}
 
-# Model speed: segmenter and propagator ms per 640x480 frame, 2 threads (writes bench-results/); sam2 on the tiny test graphs beside lk (our code's cost, not SAM 2's).
+# Model speed: segmenter (input 320, 480, 640) and propagator ms per 640x480 frame, 2 threads (writes bench-results/); sam2 on the tiny test graphs beside lk (our code's cost, not SAM 2's).
 bench-models: build setup
     ./target/release/segmenter-bench --threads 2
     ./target/release/propagator-bench --sam2-encoder tests/fixtures/tiny_sam2_encoder.onnx --sam2-decoder tests/fixtures/tiny_sam2_decoder.onnx

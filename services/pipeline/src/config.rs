@@ -357,13 +357,11 @@ impl Default for ServicesConfig {
             camera_reader: ServiceConfig::default(),
             segmenter: ServiceConfig {
                 backend: "yolov8-seg".into(),
-                model: "yolov8n-seg_f32.onnx".into(),
-                model_sha256: "38459a0adc72f8b13be368e641b3c1a9815799b9bddbb86e0140aa18ec059942"
-                    .into(),
+                // No model: the segmenter takes its export for input_size.
                 classes: DEFAULT_DYNAMIC_CLASSES.map(String::from).to_vec(),
                 score_threshold: Some(0.25),
                 iou_threshold: Some(0.7),
-                input_size: Some(320),
+                input_size: Some(480),
                 threads: Some(2),
                 ..ServiceConfig::default()
             },

@@ -15,6 +15,9 @@ pub const MODELS_ENV: &str = "DYNSLAM_MODELS";
 pub const ORT_ENV: &str = "ORT_DYLIB_PATH";
 /// Where `just setup` puts the ONNX Runtime library, relative to the repo.
 pub const ORT_CACHE: &str = ".cache/onnxruntime/libonnxruntime.so.1.31.1";
+/// Where `just setup` puts model files it derives from the shared ones
+/// (the segmenter at other input sizes), relative to the repo.
+pub const DERIVED_MODELS: &str = ".cache/models";
 
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum ProvisionError {
@@ -52,16 +55,19 @@ pub fn repo_root_of_exe() -> Option<PathBuf> {
 }
 
 /// Finds a model file: the configured path (and only it, when given), else
-/// `$DYNSLAM_MODELS/<file>`, then `../shared/models/<file>` beside the
-/// working directory and beside the repository of the running binary.
+/// `$DYNSLAM_MODELS/<file>`, then `../shared/models/<file>` and
+/// `.cache/models/<file>` (what `just setup` derives) beside the working
+/// directory and beside the repository of the running binary.
 pub fn locate_model(file: &str, configured: Option<&Path>) -> Result<PathBuf, ProvisionError> {
     let mut fallbacks = Vec::new();
     if let Some(dir) = std::env::var_os(MODELS_ENV) {
         fallbacks.push(PathBuf::from(dir).join(file));
     }
     fallbacks.push(PathBuf::from("../shared/models").join(file));
+    fallbacks.push(PathBuf::from(DERIVED_MODELS).join(file));
     if let Some(root) = repo_root_of_exe() {
         fallbacks.push(root.join("../shared/models").join(file));
+        fallbacks.push(root.join(DERIVED_MODELS).join(file));
     }
     search(configured, fallbacks).map_err(|looked| ProvisionError::ModelMissing {
         file: file.to_string(),

@@ -5,7 +5,8 @@
 //! Rows: (a) no masks, (b) ground-truth masks on every frame, (c) the
 //! segmenter on every frame, (d) the product's routing (segmenter on
 //! keyframes, propagator otherwise), (e) the product's routing with masked
-//! pixels blacked out instead of keypoints filtered; and, when the sequence
+//! pixels blacked out instead of keypoints filtered, (f, g) the product
+//! with the segmenter at 320 and 640 input (the default is 480); and, when the sequence
 //! was made by `dynslam synth` from a folder that still exists, the static
 //! original without people as the reference.
 
@@ -73,6 +74,18 @@ pub fn variants(static_original: Option<PathBuf>) -> Vec<Variant> {
             label: "(e) product routing, masked pixels blacked out",
             dataset: None,
             apply: |c| c.services.slam.mask_mode = "blackout".into(),
+        },
+        Variant {
+            key: "f",
+            label: "(f) product routing, segmenter at 320 input",
+            dataset: None,
+            apply: |c| c.services.segmenter.input_size = Some(320),
+        },
+        Variant {
+            key: "g",
+            label: "(g) product routing, segmenter at 640 input",
+            dataset: None,
+            apply: |c| c.services.segmenter.input_size = Some(640),
         },
     ]);
     v
@@ -183,7 +196,7 @@ mod tests {
         let vs = variants(None);
         assert_eq!(
             vs.iter().map(|v| v.key).collect::<Vec<_>>(),
-            ["a", "b", "c", "d", "e"]
+            ["a", "b", "c", "d", "e", "f", "g"]
         );
         let applied = |k: &str| {
             let mut c = base.clone();
@@ -196,6 +209,9 @@ mod tests {
         assert!(applied("c").routing.segment_every_frame);
         assert_eq!(applied("d"), base);
         assert_eq!(applied("e").services.slam.mask_mode, "blackout");
+        assert_eq!(applied("f").services.segmenter.input_size, Some(320));
+        assert_eq!(applied("g").services.segmenter.input_size, Some(640));
+        assert_ne!(base.services.segmenter.input_size, Some(320));
         assert_eq!(variants(Some(PathBuf::from("/x")))[0].key, "static");
     }
 

@@ -1,8 +1,10 @@
 //! Segmenter speed: median and p99 milliseconds per 640x480 frame
 //! (letterbox + YOLOv8n-seg inference + decoding + mask painting) on real
-//! TUM frames, ONNX Runtime with the configured number of threads.
+//! TUM frames, ONNX Runtime with the configured number of threads, for each
+//! network input size (320, 480, 640: the exports of `segmenter::onnx::MODELS`),
+//! back to back in one run so that the ratios compare like with like.
 //!
-//! `segmenter-bench [--frames N] [--threads T] [--config FILE] [--out FILE]`
+//! `segmenter-bench [--frames N] [--threads T] [--sizes 320,480,640] [--config FILE] [--out FILE]`
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -29,6 +31,10 @@ struct Args {
     /// ONNX Runtime intra-op threads.
     #[arg(long, default_value_t = 2)]
     threads: usize,
+    /// Network input sizes to measure (each its own export; the configured
+    /// `model`, if any, is ignored here).
+    #[arg(long, value_delimiter = ',', default_value = "320,480,640")]
+    sizes: Vec<u32>,
     /// Pipeline configuration (default: the built-in defaults, i.e. the
     /// shipped configs/pipeline.toml).
     #[arg(long)]
@@ -40,12 +46,6 @@ struct Args {
 fn main() -> Result<()> {
     let args = Args::parse();
     let config = PipelineConfig::load_or_default(args.config.as_deref())?;
-    let mut cfg = config.services.segmenter.clone();
-    cfg.threads = Some(args.threads);
-    let settings = YoloSettings::from_config(&cfg)?;
-    let model_name = settings.model.display().to_string();
-    let mut model = YoloSeg::load(init_runtime(&config.onnxruntime)?, settings)?;
-
     let files: Vec<PathBuf> = tum_folder(&args.dataset, 0.02)?
         .into_iter()
         .map(|f| f.rgb)
@@ -60,35 +60,56 @@ fn main() -> Result<()> {
         })
         .collect::<Result<_>>()?;
     let (w, h) = (images[0].width() as usize, images[0].height() as usize);
-    let mut labels = vec![0u8; w * h];
-    // Warm-up outside the measurement.
-    for img in images.iter().take(5) {
-        model.segment(img.as_raw(), w, h, &mut labels)?;
-    }
-    let mut ms = Vec::with_capacity(images.len());
-    let mut found = 0;
-    for img in &images {
-        labels.fill(0);
-        let t = Instant::now();
-        found += model.segment(img.as_raw(), w, h, &mut labels)?.len();
-        ms.push(t.elapsed().as_secs_f64() * 1e3);
-    }
-    ms.sort_by(f64::total_cmp);
-    let (p50, p99) = (percentile(&ms, 50.0), percentile(&ms, 99.0));
     println!(
-        "segmenter {model_name}, {w}x{h}, {} threads, {} frames",
+        "segmenter YOLOv8n-seg, {w}x{h} frames, {} threads, {} frames per input size",
         args.threads,
-        ms.len()
+        images.len()
     );
-    println!("{:<12} {:>9} {:>9}", "stage", "p50 ms", "p99 ms");
-    println!("{:<12} {:>9.2} {:>9.2}", "segmenter", p50, p99);
-    println!("({found} dynamic-class instances found)");
+    println!(
+        "{:<12} {:>9} {:>9} {:>10}",
+        "input size", "p50 ms", "p99 ms", "instances"
+    );
+    let mut rows = Vec::new();
+    for &size in &args.sizes {
+        let mut cfg = config.services.segmenter.clone();
+        cfg.threads = Some(args.threads);
+        cfg.input_size = Some(size);
+        cfg.model.clear();
+        cfg.model_sha256.clear();
+        cfg.model_path = None;
+        let settings = YoloSettings::from_config(&cfg)?;
+        let mut model = YoloSeg::load(init_runtime(&config.onnxruntime)?, settings)?;
+        let mut labels = vec![0u8; w * h];
+        // Warm-up outside the measurement.
+        for img in images.iter().take(5) {
+            model.segment(img.as_raw(), w, h, &mut labels)?;
+        }
+        let mut ms = Vec::with_capacity(images.len());
+        let mut found = 0;
+        for img in &images {
+            labels.fill(0);
+            let t = Instant::now();
+            found += model.segment(img.as_raw(), w, h, &mut labels)?.len();
+            ms.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+        ms.sort_by(f64::total_cmp);
+        let (p50, p99) = (percentile(&ms, 50.0), percentile(&ms, 99.0));
+        println!("{size:<12} {p50:>9.2} {p99:>9.2} {found:>10}");
+        rows.push(format!(
+            "    {{\"input_size\": {size}, \"p50_ms\": {p50:.3}, \"p99_ms\": {p99:.3}, \"instances\": {found}}}"
+        ));
+    }
     if let Some(dir) = args.out.parent() {
         std::fs::create_dir_all(dir)?;
     }
     std::fs::write(
         &args.out,
-        format!("{{\n  \"segmenter_p50_ms\": {p50:.3},\n  \"segmenter_p99_ms\": {p99:.3},\n  \"threads\": {},\n  \"frames\": {}\n}}\n", args.threads, ms.len()),
+        format!(
+            "{{\n  \"threads\": {},\n  \"frames\": {},\n  \"segmenter\": [\n{}\n  ]\n}}\n",
+            args.threads,
+            images.len(),
+            rows.join(",\n")
+        ),
     )?;
     println!("wrote {}", args.out.display());
     Ok(())

@@ -38,6 +38,11 @@ struct Args {
     output_dir: PathBuf,
     #[arg(long, default_value = "bench-results/realtime.json")]
     out: PathBuf,
+    /// Pipeline configuration the runs start from (default: the built-in
+    /// defaults, i.e. the shipped configs/pipeline.toml); the bench sets
+    /// the source, mode and fps on top.
+    #[arg(long)]
+    config: Option<PathBuf>,
     /// Internal: be a busy process pinned to this core (the load).
     #[arg(long, hide = true)]
     burn: Option<usize>,
@@ -84,8 +89,10 @@ fn main() -> Result<()> {
         .dataset
         .canonicalize()
         .with_context(|| args.dataset.display().to_string())?;
+    let base = PipelineConfig::load_or_default(args.config.as_deref())?;
     let batch = run_dir::new_run_id();
     let lockstep = run_once(
+        &base,
         &dataset,
         &args.output_dir,
         &format!("rtb-{batch}-lockstep"),
@@ -104,7 +111,7 @@ fn main() -> Result<()> {
             for i in 0..args.runs {
                 let burners = start_load(load)?;
                 let id = format!("rtb-{batch}-{fps}fps-load{load}-{i}");
-                let result = run_once(&dataset, &args.output_dir, &id, |c| {
+                let result = run_once(&base, &dataset, &args.output_dir, &id, |c| {
                     c.run.mode = ClockMode::Realtime;
                     c.run.speed = speed;
                 });
@@ -181,15 +188,16 @@ fn main() -> Result<()> {
     Ok(())
 }
 
-/// One pipeline run on `dataset` with the shipped configuration changed by
+/// One pipeline run on `dataset` with the `base` configuration changed by
 /// `apply`; its figures from the run folder.
 fn run_once(
+    base: &PipelineConfig,
     dataset: &Path,
     output_dir: &Path,
     id: &str,
     apply: impl FnOnce(&mut PipelineConfig),
 ) -> Result<RunFigures> {
-    let mut cfg = PipelineConfig::default();
+    let mut cfg = base.clone();
     cfg.source.path = dataset.to_path_buf();
     apply(&mut cfg);
     let dir = run_dir::create(output_dir, id, &cfg, "config (realtime-bench)")?;

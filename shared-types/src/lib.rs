@@ -348,6 +348,9 @@ pub struct TrackCounts {
     pub features: u32,
     /// Features dropped because they fell inside a dynamic mask.
     pub features_masked: u32,
+    /// Features dropped after tracking because they moved unlike the
+    /// camera (the SLAM's motion check).
+    pub features_moving: u32,
     pub inliers: u32,
     pub map_points: u32,
     pub keyframes: u32,

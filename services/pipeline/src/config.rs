@@ -444,6 +444,10 @@ pub struct ServiceConfig {
     /// SLAM: look for loops after each keyframe and correct the map when
     /// one closes (`loops.csv` in the run folder; off by default).
     pub loop_closing: bool,
+    /// SLAM (`orb-rgbd`, RGB-D): drop features in image regions that move
+    /// unlike the camera (movers no class list names; `features_moving`
+    /// in frames.csv; off by default).
+    pub motion_check: bool,
     /// SLAM (`orb-rgbd`): `rgbd` (colour and depth) or `monocular` (colour
     /// only: depth ignored; the map's scale is its own, evaluated with a
     /// Sim(3) alignment).

@@ -189,12 +189,17 @@ impl Canvas<'_> {
                 if sx < 0.0 || sy < 0.0 || sx >= sw || sy >= sh {
                     continue;
                 }
-                let mut col = sx as usize;
-                if p.mirrored {
-                    col = sprite.width() - 1 - col;
-                }
-                let Some(rgb) = sprite.pixel(col, sy as usize) else {
-                    continue;
+                let rgb = if sprite.smooth {
+                    sprite.bilinear(if p.mirrored { sw - sx } else { sx }, sy)
+                } else {
+                    let mut col = sx as usize;
+                    if p.mirrored {
+                        col = sprite.width() - 1 - col;
+                    }
+                    let Some(rgb) = sprite.pixel(col, sy as usize) else {
+                        continue;
+                    };
+                    rgb
                 };
                 let i = y * self.width + x;
                 let scene = occluders[i];

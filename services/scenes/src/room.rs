@@ -98,6 +98,7 @@ const BOXES: [Aabb; 3] = [
 pub fn default_walks() -> WalkOptions {
     WalkOptions {
         objects: 2,
+        boxes: 0,
         speed_mps: 1.0,
         near_m: 1.1,
         far_m: 2.0,

@@ -4,8 +4,10 @@
 //! Output folder: `rgb/`, `depth/` (same file names as the input),
 //! `rgb.txt`, `depth.txt`, `associations.txt`, the input's `groundtruth.txt`
 //! byte for byte (the camera did not change), `masks/` (8-bit PNG, the
-//! instance id of the person seen at each pixel, 0 for none), `masks.txt`
-//! and `objects.json` (options, walkers, and per frame where each person was
+//! instance id of the person seen at each pixel, 0 for none), `masks.txt`,
+//! with `--boxes` `movers/` and `movers.txt` (the same for carried boxes:
+//! movers no class list names, kept out of `masks/` so that the person
+//! scores stay about people) and `objects.json` (options, walkers, and per frame where each person was
 //! drawn and how many pixels it covers). Frames are independent, so they are
 //! rendered on all cores.
 
@@ -21,8 +23,8 @@ use serde::Serialize;
 use slam_core::io::trajectory::Trajectory;
 
 use crate::composite::{place, Canvas, Pinhole, Placement};
-use crate::sprites::{people, Sprite};
-use crate::walkers::{walkers, Occlusion, Stage, WalkOptions, Walker};
+use crate::sprites::{moving_box, people, Sprite};
+use crate::walkers::{walkers, Kind, Occlusion, Stage, WalkOptions, Walker};
 
 #[derive(Debug, thiserror::Error)]
 pub enum SynthError {
@@ -129,11 +131,16 @@ pub fn synthesize(
         })
         .collect();
     let stage = Stage::from_camera(&poses[0]);
-    let sprites = people();
+    let mut sprites = people();
     let aspects: Vec<f64> = sprites
         .iter()
         .map(|s| s.width() as f64 / s.height() as f64)
         .collect();
+    sprites.push(moving_box());
+    if options.boxes > 0 {
+        let dir = output.join("movers");
+        std::fs::create_dir_all(&dir).map_err(io_err(&dir))?;
+    }
     // The frame size from the first image's header (walk widths and coverage).
     let (width, height) =
         image::image_dimensions(&frames[0].rgb).map_err(|e| SynthError::BadImage {
@@ -154,17 +161,22 @@ pub fn synthesize(
             sprites: &sprites,
             camera,
             depth_scale,
-            height_m: options.height_m,
             occlusion: options.occlusion,
+            boxes: options.boxes > 0,
         }
         .render(output)
     })?;
 
-    write_lists(output, &frames_out)?;
+    write_lists(output, &frames_out, options.boxes > 0)?;
+    let is_person = |id: u8| walkers.iter().any(|w| w.id == id && w.kind == Kind::Person);
     let coverages: Vec<f64> = frames_out
         .iter()
         .map(|f| {
-            f.objects.iter().map(|o| o.visible_px).sum::<usize>() as f64
+            f.objects
+                .iter()
+                .filter(|o| is_person(o.placement.id))
+                .map(|o| o.visible_px)
+                .sum::<usize>() as f64
                 / (width as f64 * height as f64)
         })
         .collect();
@@ -246,8 +258,9 @@ struct FrameJob<'a> {
     sprites: &'a [Sprite],
     camera: &'a Pinhole,
     depth_scale: f64,
-    height_m: f64,
     occlusion: Occlusion,
+    /// Write `movers/` (the boxes' labels).
+    boxes: bool,
 }
 
 impl FrameJob<'_> {
@@ -299,7 +312,7 @@ impl FrameJob<'_> {
                     s.leftwards,
                     &s.centre,
                     &self.stage.up,
-                    self.height_m,
+                    walker.height_m,
                     self.pose,
                     self.camera,
                 )
@@ -327,6 +340,18 @@ impl FrameJob<'_> {
             format!("rgb/{}", name(rgb_path)),
             format!("depth/{}", name(depth_path)),
         );
+        // People stay in masks/, boxes go to movers/ (same ids).
+        let mut movers = vec![0u8; w * h];
+        for (label, mover) in labels.iter_mut().zip(movers.iter_mut()) {
+            if *label != 0
+                && self
+                    .walkers
+                    .iter()
+                    .any(|wk| wk.id == *label && wk.kind == Kind::Box)
+            {
+                *mover = std::mem::take(label);
+            }
+        }
         let mask_rel = format!("masks/{}", name(rgb_path));
         let save_err = |p: PathBuf| {
             move |e: image::ImageError| SynthError::Io {
@@ -343,6 +368,13 @@ impl FrameJob<'_> {
             .expect("label buffer has the frame's size")
             .save(output.join(&mask_rel))
             .map_err(save_err(output.join(&mask_rel)))?;
+        if self.boxes {
+            let movers_path = output.join(format!("movers/{}", name(rgb_path)));
+            ImageBuffer::<Luma<u8>, _>::from_raw(w as u32, h as u32, movers)
+                .expect("label buffer has the frame's size")
+                .save(&movers_path)
+                .map_err(save_err(movers_path.clone()))?;
+        }
         Ok(FrameRecord {
             timestamp: self.frame.timestamp,
             rgb: rgb_rel,
@@ -363,15 +395,23 @@ impl FrameJob<'_> {
 /// rgb.txt, depth.txt, associations.txt and masks.txt. The depth
 /// timestamps are the colour frame's: the pair was associated on input and
 /// is rendered as one instant.
-fn write_lists(output: &Path, frames: &[FrameRecord]) -> Result<(), SynthError> {
+fn write_lists(output: &Path, frames: &[FrameRecord], boxes: bool) -> Result<(), SynthError> {
     let header = "# dynslam synth: people composited over a TUM RGB-D sequence (see objects.json)\n# timestamp filename\n";
     let mut rgb = String::from(header);
     let mut depth = String::from(header);
     let mut masks = String::from(
         "# dynslam synth: ground-truth instance ids (0: none)\n# timestamp filename\n",
     );
+    let mut movers = String::from(
+        "# dynslam synth: carried boxes' instance ids (0: none), movers no class names\n# timestamp filename\n",
+    );
     let mut assoc = String::new();
     for f in frames {
+        movers += &format!(
+            "{:.6} {}\n",
+            f.timestamp,
+            f.mask.replacen("masks/", "movers/", 1)
+        );
         rgb += &format!("{:.6} {}\n", f.timestamp, f.rgb);
         depth += &format!("{:.6} {}\n", f.timestamp, f.depth);
         masks += &format!("{:.6} {}\n", f.timestamp, f.mask);
@@ -380,12 +420,16 @@ fn write_lists(output: &Path, frames: &[FrameRecord]) -> Result<(), SynthError> 
             f.timestamp, f.rgb, f.timestamp, f.depth
         );
     }
-    for (name, text) in [
+    let mut lists = vec![
         ("rgb.txt", rgb),
         ("depth.txt", depth),
         ("masks.txt", masks),
         ("associations.txt", assoc),
-    ] {
+    ];
+    if boxes {
+        lists.push(("movers.txt", movers));
+    }
+    for (name, text) in lists {
         let p = output.join(name);
         std::fs::write(&p, text).map_err(io_err(&p))?;
     }

@@ -33,13 +33,31 @@ impl Stage {
     }
 }
 
-/// One person's walk.
+/// What walks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Kind {
+    /// A person: in the ground-truth masks (`masks/`), what a segmenter
+    /// should find.
+    Person,
+    /// A carried box: in `movers/` only, what no class list names (the
+    /// SLAM's motion check should find it).
+    Box,
+}
+
+/// Height of a carried box in the world (metres).
+pub const BOX_HEIGHT_M: f64 = 0.4;
+
+/// One person's (or box's) walk.
 #[derive(Debug, Clone, Serialize)]
 pub struct Walker {
     /// Instance id in the ground-truth masks (1..=255).
     pub id: u8,
+    pub kind: Kind,
     /// Index into the sprites.
     pub sprite: usize,
+    /// Height of the cut-out in the world (metres).
+    pub height_m: f64,
     /// Metres in front of the first camera.
     pub distance_m: f64,
     /// Turning points at +-half_span_m along `right`.
@@ -81,6 +99,9 @@ pub enum Occlusion {
 #[derive(Debug, Clone, Serialize)]
 pub struct WalkOptions {
     pub objects: usize,
+    /// Carried boxes besides the people (ids after theirs).
+    #[serde(default)]
+    pub boxes: usize,
     pub speed_mps: f64,
     pub near_m: f64,
     pub far_m: f64,
@@ -94,6 +115,7 @@ impl Default for WalkOptions {
     fn default() -> Self {
         Self {
             objects: 2,
+            boxes: 0,
             speed_mps: 1.0,
             near_m: 0.7,
             far_m: 1.4,
@@ -106,8 +128,11 @@ impl Default for WalkOptions {
 
 impl WalkOptions {
     pub fn validate(&self) -> Result<(), String> {
-        if self.objects == 0 || self.objects > 255 {
-            return Err(format!("--objects {}: must be 1..=255", self.objects));
+        if self.objects + self.boxes == 0 || self.objects + self.boxes > 255 {
+            return Err(format!(
+                "--objects {} --boxes {}: together must be 1..=255",
+                self.objects, self.boxes
+            ));
         }
         if !(self.speed_mps.is_finite() && self.speed_mps > 0.0 && self.speed_mps <= 10.0) {
             return Err(format!(
@@ -135,22 +160,33 @@ impl WalkOptions {
     }
 }
 
-/// Draws the walkers for `options` (deterministic for the seed).
-/// `half_fov_tan` is the tangent of the horizontal half field of view and
-/// `aspects` the width/height of each sprite.
+/// Draws the walkers for `options` (deterministic for the seed): the
+/// people (sprites `0..aspects.len()`, cycled), then the boxes (sprite
+/// `aspects.len()`, square). `half_fov_tan` is the tangent of the
+/// horizontal half field of view and `aspects` the width/height of each
+/// person sprite.
 pub fn walkers(options: &WalkOptions, half_fov_tan: f64, aspects: &[f64]) -> Vec<Walker> {
     let mut rng = SplitMix64::new(options.seed);
-    (0..options.objects)
+    let total = options.objects + options.boxes;
+    (0..total)
         .map(|k| {
-            let sprite = k % aspects.len();
+            let person = k < options.objects;
+            let (kind, sprite, height_m, aspect) = if person {
+                let sprite = k % aspects.len();
+                (Kind::Person, sprite, options.height_m, aspects[sprite])
+            } else {
+                (Kind::Box, aspects.len(), BOX_HEIGHT_M, 1.0)
+            };
             // Spread distances over the range so that crowds overlap in depth.
-            let slot = (k as f64 + rng.uniform(0.0, 1.0)) / options.objects as f64;
+            let slot = (k as f64 + rng.uniform(0.0, 1.0)) / total as f64;
             let distance_m = options.near_m + (options.far_m - options.near_m) * slot;
-            let half_width = 0.5 * options.height_m * aspects[sprite];
+            let half_width = 0.5 * height_m * aspect;
             let half_span_m = (distance_m + options.far_m * 0.2) * half_fov_tan + half_width + 0.3;
             Walker {
                 id: (k + 1) as u8,
+                kind,
                 sprite,
+                height_m,
                 distance_m,
                 half_span_m,
                 speed_mps: options.speed_mps * rng.uniform(0.8, 1.2),

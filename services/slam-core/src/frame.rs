@@ -130,9 +130,12 @@ impl Frame {
     /// This frame without the keypoints `drop` marks (a better mask that
     /// came later), and the old index of every keypoint kept.
     pub fn without(&self, drop: impl Fn(&KeyPoint) -> bool) -> (Frame, Vec<usize>) {
-        let kept: Vec<usize> = (0..self.kps.len())
-            .filter(|&k| !drop(&self.kps[k]))
-            .collect();
+        self.without_index(|k| drop(&self.kps[k]))
+    }
+
+    /// [`Frame::without`], `drop` given the keypoint's index.
+    pub fn without_index(&self, drop: impl Fn(usize) -> bool) -> (Frame, Vec<usize>) {
+        let kept: Vec<usize> = (0..self.kps.len()).filter(|&k| !drop(k)).collect();
         let un: Vec<(f64, f64)> = kept.iter().map(|&k| self.un[k]).collect();
         let frame = Frame {
             grid: Grid::new(&un, self.width, self.height),

@@ -85,6 +85,10 @@ pub struct SlamParams {
     /// After a loop correction, bundle-adjust the whole map (on the
     /// loop-closing thread, merged as ORB-SLAM2 does).
     pub global_bundle_adjustment: bool,
+    /// RGB-D: drop features in regions that move unlike the camera
+    /// ([`crate::tracking::motion_check`]), movers no mask names. Off by
+    /// default until it finds movers reliably (README "Motion check").
+    pub motion_check: bool,
 }
 
 impl SlamParams {
@@ -125,6 +129,7 @@ impl Default for SlamParams {
             fuse_points: false,
             loop_closing: false,
             global_bundle_adjustment: true,
+            motion_check: false,
         }
     }
 }

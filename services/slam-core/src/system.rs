@@ -24,6 +24,7 @@ use crate::loop_closing::LoopClosure;
 use crate::map::{Map, MappingCounts, MappingReport};
 use crate::params::SlamParams;
 use crate::place_recognition::Vocabulary;
+use crate::tracking::motion_check::{MotionCheck, MotionCheckParams, MovingRegion};
 use crate::tracking::{Tracked, Tracking, TrackingState};
 
 /// Undistorted keypoint pixels and depths before the rolling-shutter
@@ -36,6 +37,9 @@ pub struct FrameCounts {
     pub features: u32,
     /// Corners dropped because they fell inside a dynamic mask.
     pub features_masked: u32,
+    /// Features dropped after tracking because they move unlike the camera
+    /// (RGB-D motion check, [`crate::tracking::motion_check`]).
+    pub features_moving: u32,
     pub inliers: u32,
     /// Live map points and keyframes after this frame.
     pub map_points: u32,
@@ -129,6 +133,10 @@ pub struct System {
     loops: Vec<LoopClosure>,
     /// Every report of the loop closer.
     loop_reports: Vec<crate::loop_closing::LoopReport>,
+    /// Features that move unlike the camera (RGB-D, `params.motion_check`).
+    motion: MotionCheck,
+    /// The last frame's moving regions (undistorted pixel boxes).
+    moving_regions: Vec<MovingRegion>,
 }
 
 /// What the keyframe rule made of a tracked frame.
@@ -191,6 +199,8 @@ impl System {
             mapping_ms: 0.0,
             mapped: MappingCounts::default(),
             pending_keyframe: None,
+            motion: MotionCheck::new(MotionCheckParams::default()),
+            moving_regions: Vec::new(),
         }
     }
 
@@ -343,6 +353,12 @@ impl System {
                 tracked.pose_cw = refined;
             }
         }
+        let moving = if tracked.state.is_tracked() && !initialising {
+            self.drop_moving(&mut frame, &mut tracked, input)
+        } else {
+            self.moving_regions.clear();
+            0
+        };
         // A successful initialisation made the first keyframe.
         let started = initialising && tracked.state == TrackingState::Ok;
         let decision = self.decide_keyframe(&tracked, &frame, input.timestamp, started, timing);
@@ -358,7 +374,8 @@ impl System {
         }
         let mut counts = FrameCounts {
             features: frame.kps.len() as u32,
-            features_masked: frame.masked as u32,
+            features_masked: (frame.masked - moving) as u32,
+            features_moving: moving as u32,
             extract_us: (extract_ms * 1e3) as u32,
             inliers: tracked.inliers as u32,
             map_points: self.map.live_point_count() as u32,
@@ -406,6 +423,56 @@ impl System {
             extract_ms,
             track_ms: to_ms(t1),
         }
+    }
+
+    /// The RGB-D motion check (when `params.motion_check`): the keypoints of
+    /// `frame` in regions that move unlike the camera (at its pose just
+    /// estimated) are dropped from the frame and its matches, so that
+    /// neither the keyframe decision nor mapping sees them; the pose itself
+    /// came from robust optimisation, where such a minority is outvoted.
+    /// The frame is kept whole for later frames' checks (a mover keeps
+    /// being found). Returns how many keypoints were dropped.
+    fn drop_moving(
+        &mut self,
+        frame: &mut Frame,
+        tracked: &mut Tracked,
+        input: &RgbdInput,
+    ) -> usize {
+        self.moving_regions.clear();
+        if !self.params.motion_check || self.params.is_monocular() {
+            return 0;
+        }
+        let regions = self
+            .motion
+            .regions(frame, &tracked.pose_cw, input.timestamp, &self.camera);
+        self.motion.remember(
+            frame,
+            input.depth,
+            &tracked.pose_cw,
+            input.timestamp,
+            &self.camera,
+        );
+        if regions.is_empty() {
+            return 0;
+        }
+        let (kept, index) = frame.without_index(|k| {
+            let (u, v) = frame.un[k];
+            regions.iter().any(|r| r.contains(u, v))
+        });
+        let dropped = frame.kps.len() - kept.kps.len();
+        tracked.matched = index.iter().map(|&k| tracked.matched[k]).collect();
+        tracked.inliers = tracked
+            .inliers
+            .min(tracked.matched.iter().flatten().count());
+        *frame = kept;
+        self.moving_regions = regions;
+        dropped
+    }
+
+    /// The regions the motion check found moving in the last frame
+    /// (undistorted pixel boxes; empty when off, monocular or none).
+    pub fn moving_regions(&self) -> &[MovingRegion] {
+        &self.moving_regions
     }
 
     /// The frame's features; with a rolling shutter, keypoints moved to the

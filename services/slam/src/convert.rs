@@ -27,6 +27,7 @@ pub fn params(config: &PipelineConfig) -> SlamParams {
         params.orb.threads = t.max(1);
     }
     params.loop_closing = config.services.slam.loop_closing;
+    params.motion_check = config.services.slam.motion_check;
     params
 }
 
@@ -44,6 +45,7 @@ pub fn counts(c: &FrameCounts) -> TrackCounts {
     TrackCounts {
         features: c.features,
         features_masked: c.features_masked,
+        features_moving: c.features_moving,
         inliers: c.inliers,
         map_points: c.map_points,
         keyframes: c.keyframes,

@@ -155,8 +155,8 @@ enum Command {
         #[arg(long, default_value_t = 150)]
         frames: usize,
     },
-    /// Make a dynamic sequence: people walking through a TUM RGB-D
-    /// sequence, with ground-truth masks (masks/, objects.json).
+    /// Make a dynamic sequence: people (and boxes) walking through a TUM
+    /// RGB-D sequence, with ground-truth masks (masks/, movers/, objects.json).
     Synth {
         /// TUM RGB-D folder with groundtruth.txt.
         input: PathBuf,
@@ -165,6 +165,11 @@ enum Command {
         /// Number of people.
         #[arg(long, default_value_t = 2)]
         objects: usize,
+        /// Carried boxes besides the people (0.4 m, textured): movers no
+        /// class list names, in movers/ and movers.txt, not in masks/ (the
+        /// SLAM's motion check should find them).
+        #[arg(long, default_value_t = 0)]
+        boxes: usize,
         /// Walking speed (m/s; each person varies it by +-20 %).
         #[arg(long, default_value_t = 1.0)]
         speed: f64,
@@ -509,6 +514,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             input,
             output,
             objects,
+            boxes,
             speed,
             near,
             far,
@@ -520,6 +526,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
         } => {
             let options = scenes::walkers::WalkOptions {
                 objects,
+                boxes,
                 speed_mps: speed,
                 near_m: near,
                 far_m: far,

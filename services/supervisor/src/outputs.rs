@@ -35,6 +35,7 @@ pub struct FrameRow {
     pub pose: [f64; 7],
     pub features: u32,
     pub features_masked: u32,
+    pub features_moving: u32,
     pub inliers: u32,
     pub map_points: u32,
     pub keyframes: u32,
@@ -68,6 +69,9 @@ struct CsvRow {
     qw: Option<f64>,
     features: u32,
     features_masked: u32,
+    /// Absent in frames.csv of older versions (a resumed run).
+    #[serde(default)]
+    features_moving: u32,
     inliers: u32,
     map_points: u32,
     keyframes: u32,
@@ -87,7 +91,7 @@ struct CsvRow {
 
 /// The header line `CsvRow` writes (checked by a test).
 const HEADER: &str = "seq,timestamp,state,route,mask_source,keyframe,next_keyframe,\
-tx,ty,tz,qx,qy,qz,qw,features,features_masked,inliers,map_points,keyframes,\
+tx,ty,tz,qx,qy,qz,qw,features,features_masked,features_moving,inliers,map_points,keyframes,\
 slam_extract_us,slam_mapping_us,capture_ns,published_ns,routed_ns,masks_start_ns,masks_done_ns,slam_received_ns,\
 track_start_ns,track_done_ns,track_received_ns,note";
 
@@ -112,6 +116,7 @@ impl From<&FrameRow> for CsvRow {
             qw: pose(6),
             features: r.features,
             features_masked: r.features_masked,
+            features_moving: r.features_moving,
             inliers: r.inliers,
             map_points: r.map_points,
             keyframes: r.keyframes,
@@ -147,6 +152,7 @@ impl From<CsvRow> for FrameRow {
             pose: p.map(|v| v.unwrap_or(0.0)),
             features: c.features,
             features_masked: c.features_masked,
+            features_moving: c.features_moving,
             inliers: c.inliers,
             map_points: c.map_points,
             keyframes: c.keyframes,

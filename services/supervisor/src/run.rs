@@ -347,6 +347,7 @@ impl Supervisor {
             pose: t.pose,
             features: t.counts.features,
             features_masked: t.counts.features_masked,
+            features_moving: t.counts.features_moving,
             inliers: t.counts.inliers,
             map_points: t.counts.map_points,
             keyframes: t.counts.keyframes,

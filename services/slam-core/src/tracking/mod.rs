@@ -9,6 +9,7 @@
 //! are moved to the middle row's instant ([`rolling_shutter`]).
 
 mod local_map;
+pub mod motion_check;
 mod relocalisation;
 pub(crate) mod rolling_shutter;
 

@@ -442,9 +442,13 @@ impl System {
         if !self.params.motion_check || self.params.is_monocular() {
             return 0;
         }
-        let regions = self
-            .motion
-            .regions(frame, &tracked.pose_cw, input.timestamp, &self.camera);
+        let regions = self.motion.regions(
+            frame,
+            input.depth,
+            &tracked.pose_cw,
+            input.timestamp,
+            &self.camera,
+        );
         self.motion.remember(
             frame,
             input.depth,

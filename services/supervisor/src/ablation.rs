@@ -6,7 +6,8 @@
 //! segmenter on every frame, (d) the product's routing (segmenter on
 //! keyframes, propagator otherwise), (e) the product's routing with masked
 //! pixels blacked out instead of keypoints filtered, (f, g) the product
-//! with the segmenter at 320 and 640 input (the default is 480); and, when the sequence
+//! with the segmenter at 320 and 640 input (the default is 480), (h) the
+//! product with the SLAM's motion check; and, when the sequence
 //! was made by `dynslam synth` from a folder that still exists, the static
 //! original without people as the reference.
 
@@ -86,6 +87,12 @@ pub fn variants(static_original: Option<PathBuf>) -> Vec<Variant> {
             label: "(g) product routing, segmenter at 640 input",
             dataset: None,
             apply: |c| c.services.segmenter.input_size = Some(640),
+        },
+        Variant {
+            key: "h",
+            label: "(h) product routing, with the SLAM's motion check",
+            dataset: None,
+            apply: |c| c.services.slam.motion_check = true,
         },
     ]);
     v
@@ -196,7 +203,7 @@ mod tests {
         let vs = variants(None);
         assert_eq!(
             vs.iter().map(|v| v.key).collect::<Vec<_>>(),
-            ["a", "b", "c", "d", "e", "f", "g"]
+            ["a", "b", "c", "d", "e", "f", "g", "h"]
         );
         let applied = |k: &str| {
             let mut c = base.clone();
@@ -212,6 +219,7 @@ mod tests {
         assert_eq!(applied("f").services.segmenter.input_size, Some(320));
         assert_eq!(applied("g").services.segmenter.input_size, Some(640));
         assert_ne!(base.services.segmenter.input_size, Some(320));
+        assert!(applied("h").services.slam.motion_check && !base.services.slam.motion_check);
         assert_eq!(variants(Some(PathBuf::from("/x")))[0].key, "static");
     }
 

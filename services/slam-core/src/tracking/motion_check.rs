@@ -63,6 +63,15 @@ pub struct MotionCheckParams {
     pub min_share: f64,
     /// Margin added around a cluster's box (pixels).
     pub margin_px: f64,
+    /// Dense depth warp: at least this many 4x4 cells, connected, in
+    /// front of what the older frame saw...
+    pub min_cells: usize,
+    /// ...grown over neighbouring cells whose depth continues the surface
+    /// (within `surface_m + surface_per_m * z`), to at most this many
+    /// times its size.
+    pub surface_m: f64,
+    pub surface_per_m: f64,
+    pub max_growth: usize,
 }
 
 impl Default for MotionCheckParams {
@@ -80,6 +89,10 @@ impl Default for MotionCheckParams {
             min_cluster: 6,
             min_share: 0.5,
             margin_px: 8.0,
+            min_cells: 40,
+            surface_m: 0.02,
+            surface_per_m: 0.01,
+            max_growth: 3,
         }
     }
 }
@@ -117,6 +130,10 @@ struct NearestDepth {
 }
 
 const CELL: usize = 4;
+/// Cells each side of a lookup (5x5 cells, 20 px): TUM's depth and colour
+/// images are up to 20 ms apart, which in a fast turn moves the depth
+/// image several cells against the pose of the colour image.
+const WINDOW: usize = 2;
 
 impl NearestDepth {
     fn new(depth: &[u16], width: usize, height: usize, depth_scale: f64) -> Self {
@@ -143,8 +160,8 @@ impl NearestDepth {
         }
     }
 
-    /// The nearest surface seen within a cell of the (raw) pixel, when
-    /// most of those 3x3 cells saw one: a foreground edge a pose error
+    /// The nearest surface seen within `WINDOW` cells of the (raw) pixel,
+    /// when two thirds of those cells saw one: a foreground edge a pose error
     /// away still counts, so edges do not look like free space.
     fn nearest_around(&self, (u, v): (f64, f64)) -> Option<f64> {
         if !(u >= 0.0 && v >= 0.0) {
@@ -155,8 +172,8 @@ impl NearestDepth {
             return None;
         }
         let (mut nearest, mut seen) = (f32::INFINITY, 0);
-        for y in cy.saturating_sub(1)..(cy + 2).min(self.height) {
-            for x in cx.saturating_sub(1)..(cx + 2).min(self.width) {
+        for y in cy.saturating_sub(WINDOW)..(cy + WINDOW + 1).min(self.height) {
+            for x in cx.saturating_sub(WINDOW)..(cx + WINDOW + 1).min(self.width) {
                 let m = self.metres[y * self.width + x];
                 if m > 0.0 {
                     seen += 1;
@@ -164,14 +181,21 @@ impl NearestDepth {
                 }
             }
         }
-        (seen >= 6).then_some(nearest as f64)
+        let cells = (2 * WINDOW + 1) * (2 * WINDOW + 1);
+        (seen * 3 >= cells * 2).then_some(nearest as f64)
     }
 }
+
+/// An image size and the ideal pixel of each of its depth cells' centres.
+type CellPixels = ((usize, usize), Vec<(f64, f64)>);
 
 /// The check and the recent frames it compares with.
 pub struct MotionCheck {
     params: MotionCheckParams,
     history: VecDeque<PastFrame>,
+    /// Ideal (undistorted) pixel of each depth cell's centre, for the
+    /// image size they were computed for.
+    cell_pixels: Option<CellPixels>,
 }
 
 /// One keypoint's evidence: where it is, how far it moved in the image.
@@ -186,6 +210,7 @@ impl MotionCheck {
         Self {
             params,
             history: VecDeque::new(),
+            cell_pixels: None,
         }
     }
 
@@ -199,12 +224,28 @@ impl MotionCheck {
     /// camera, against the newest kept frame at least `gap_s` older; none
     /// until there is one.
     pub fn regions(
-        &self,
+        &mut self,
         frame: &Frame,
+        depth: &[u16],
         pose_cw: &Isometry3<f64>,
         timestamp: f64,
         camera: &Camera,
     ) -> Vec<MovingRegion> {
+        let (w, h) = (frame.width, frame.height);
+        if self
+            .cell_pixels
+            .as_ref()
+            .is_none_or(|(size, _)| *size != (w, h))
+        {
+            let (cw, ch) = (w.div_ceil(CELL), h.div_ceil(CELL));
+            let centres = (0..cw * ch)
+                .map(|c| {
+                    let (x, y) = ((c % cw) * CELL, (c / cw) * CELL);
+                    camera.undistort(x as f64 + CELL as f64 / 2.0, y as f64 + CELL as f64 / 2.0)
+                })
+                .collect();
+            self.cell_pixels = Some(((w, h), centres));
+        }
         let p = &self.params;
         let Some(past) = self
             .history
@@ -284,6 +325,34 @@ impl MotionCheck {
         // free space (no shift; an object that entered or moved onto it).
         let mut out = clusters(&moved, &matched_at, p);
         out.extend(clusters(&appeared, &seen_at, p));
+        let now = NearestDepth::new(depth, w, h, camera.depth_scale);
+        let cells = &self.cell_pixels.as_ref().expect("computed above").1;
+        out.extend(dense_regions(
+            &now,
+            cells,
+            &past.depth,
+            &now_to_past,
+            camera,
+            p,
+        ));
+        // The depth warp also against a frame half as old: it saw more of
+        // what the camera sees now (a mover that came in with a turn).
+        if let Some(recent) = self
+            .history
+            .iter()
+            .rev()
+            .find(|f| timestamp - f.timestamp >= p.gap_s / 2.0 && f.timestamp > past.timestamp)
+        {
+            let now_to_recent = recent.pose_cw * pose_cw.inverse();
+            out.extend(dense_regions(
+                &now,
+                cells,
+                &recent.depth,
+                &now_to_recent,
+                camera,
+                p,
+            ));
+        }
         out
     }
 
@@ -318,6 +387,104 @@ impl MotionCheck {
             self.history.pop_front();
         }
     }
+}
+
+/// The dense depth warp: cells of the current depth (`now`) that, put
+/// into the older frame, lie in front of what it saw there (free space
+/// then), in connected groups of at least `min_cells`, each grown over the
+/// surface it is part of (a mover's other cells, which may overlap where
+/// it was before); their boxes in ideal pixels.
+fn dense_regions(
+    now: &NearestDepth,
+    cells: &[(f64, f64)],
+    past: &NearestDepth,
+    now_to_past: &Isometry3<f64>,
+    camera: &Camera,
+    p: &MotionCheckParams,
+) -> Vec<MovingRegion> {
+    let (w, h) = (now.width, now.height);
+    let mut appeared = vec![false; w * h];
+    for (c, flag) in appeared.iter_mut().enumerate() {
+        let z = now.metres[c] as f64;
+        if z <= 0.0 {
+            continue;
+        }
+        let (u, v) = cells[c];
+        let there = now_to_past * nalgebra::Point3::from(camera.unproject(u, v, z));
+        if there.z < 0.1 {
+            continue;
+        }
+        let (pu, pv) = camera.project(&there.coords);
+        if let Some(seen) = past.nearest_around(camera.distort(pu, pv)) {
+            *flag = seen - there.z > p.min_move_m + p.move_per_m2 * z * z;
+        }
+    }
+    let neighbours = |c: usize| {
+        let (x, y) = (c % w, c / w);
+        [
+            (x > 0).then(|| c - 1),
+            (x + 1 < w).then(|| c + 1),
+            (y > 0).then(|| c - w),
+            (y + 1 < h).then(|| c + w),
+        ]
+        .into_iter()
+        .flatten()
+    };
+    let mut label = vec![0u32; w * h];
+    let mut regions = Vec::new();
+    let mut next = 0u32;
+    for start in 0..w * h {
+        if !appeared[start] || label[start] != 0 {
+            continue;
+        }
+        next += 1;
+        let mut component = vec![start];
+        label[start] = next;
+        let mut i = 0;
+        while i < component.len() {
+            for n in neighbours(component[i]) {
+                if appeared[n] && label[n] == 0 {
+                    label[n] = next;
+                    component.push(n);
+                }
+            }
+            i += 1;
+        }
+        if component.len() < p.min_cells {
+            continue;
+        }
+        let seed = component.len();
+        // Grow over the same surface: a neighbour continues it when its
+        // depth is close to the cell it is reached from.
+        let mut i = 0;
+        while i < component.len() && component.len() < seed * p.max_growth {
+            let c = component[i];
+            let z = now.metres[c] as f64;
+            for n in neighbours(c) {
+                let zn = now.metres[n] as f64;
+                if label[n] == 0 && zn > 0.0 && (zn - z).abs() <= p.surface_m + p.surface_per_m * z
+                {
+                    label[n] = next;
+                    component.push(n);
+                }
+            }
+            i += 1;
+        }
+        let mut min = [f64::INFINITY; 2];
+        let mut max = [f64::NEG_INFINITY; 2];
+        for &c in &component {
+            let (u, v) = cells[c];
+            min = [min[0].min(u), min[1].min(v)];
+            max = [max[0].max(u), max[1].max(v)];
+        }
+        let half = CELL as f64 / 2.0 + p.margin_px;
+        regions.push(MovingRegion {
+            min: [(min[0] - half) as f32, (min[1] - half) as f32],
+            max: [(max[0] + half) as f32, (max[1] + half) as f32],
+            evidence: seed,
+        });
+    }
+    regions
 }
 
 /// Groups moved keypoints (single linkage: near in the image, shifted
@@ -416,6 +583,74 @@ mod tests {
         let mut matched: Vec<_> = m.iter().map(|x| x.at).collect();
         matched.extend((0..20).map(|i| Vector2::new(100.0 + 2.0 * i as f64, 100.0)));
         assert!(clusters(&m, &matched, &p).is_empty());
+    }
+
+    /// Depth of a 640x480 view of a wall at 2 m, with a square at 1 m
+    /// over columns `x0..x0 + 120`, rows 180..300 (when `x0` is given).
+    fn wall_with_square(x0: Option<usize>) -> NearestDepth {
+        let (w, h) = (640, 480);
+        let mut depth = vec![10_000u16; w * h]; // 2 m at 5000 units per metre
+        if let Some(x0) = x0 {
+            for y in 180..300 {
+                depth[y * w + x0..y * w + x0 + 120].fill(5000);
+            }
+        }
+        NearestDepth::new(&depth, w, h, 5000.0)
+    }
+
+    fn cell_centres(camera: &Camera) -> Vec<(f64, f64)> {
+        (0..160 * 120)
+            .map(|c| camera.undistort((c % 160 * 4) as f64 + 2.0, (c / 160 * 4) as f64 + 2.0))
+            .collect()
+    }
+
+    #[test]
+    fn the_depth_warp_finds_what_moved_into_free_space_and_nothing_in_a_still_scene() {
+        let camera = Camera::new([500.0, 500.0, 320.0, 240.0], [0.0; 5], 5000.0, 0.0);
+        let cells = cell_centres(&camera);
+        let p = MotionCheckParams::default();
+        let still = Isometry3::identity();
+        // The square moved 80 px to the right; the camera did not move.
+        let regions = dense_regions(
+            &wall_with_square(Some(300)),
+            &cells,
+            &wall_with_square(Some(220)),
+            &still,
+            &camera,
+            &p,
+        );
+        assert_eq!(regions.len(), 1, "{regions:?}");
+        let r = regions[0];
+        // It covers the square now (grown over its surface, the part that
+        // overlaps where it was included), not the wall beside it.
+        assert!(
+            r.contains(310.0, 190.0) && r.contains(410.0, 290.0),
+            "{r:?}"
+        );
+        assert!(
+            !r.contains(200.0, 240.0) && !r.contains(460.0, 240.0),
+            "{r:?}"
+        );
+        // Nothing moved: nothing found; the square where it was: nothing.
+        let same = dense_regions(
+            &wall_with_square(Some(300)),
+            &cells,
+            &wall_with_square(Some(300)),
+            &still,
+            &camera,
+            &p,
+        );
+        assert!(same.is_empty(), "{same:?}");
+        // The square left: the wall behind it is not in front of anything.
+        let left = dense_regions(
+            &wall_with_square(None),
+            &cells,
+            &wall_with_square(Some(300)),
+            &still,
+            &camera,
+            &p,
+        );
+        assert!(left.is_empty(), "{left:?}");
     }
 
     #[test]

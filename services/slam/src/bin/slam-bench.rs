@@ -84,6 +84,10 @@ struct Args {
     /// default); prints loops closed and loop-detection time per keyframe.
     #[arg(long)]
     loop_closing: bool,
+    /// RGB-D motion check on (off by default): drop features in regions
+    /// that move unlike the camera; prints how many were dropped.
+    #[arg(long)]
+    motion_check: bool,
     /// With --loop-closing: no global bundle adjustment after a loop
     /// correction (the essential graph alone).
     #[arg(long)]
@@ -181,6 +185,7 @@ fn main() -> Result<()> {
     params.triangulate = !args.no_triangulation;
     params.fuse_points = args.fusion;
     params.loop_closing = args.loop_closing;
+    params.motion_check = args.motion_check;
     params.global_bundle_adjustment = !args.no_global_ba;
     if let Some(n) = args.features {
         anyhow::ensure!(n >= 50, "--features {n}: at least 50 are needed to track");
@@ -222,6 +227,7 @@ fn main() -> Result<()> {
     };
     let mut tracked = 0;
     let mut relocalised = 0;
+    let (mut moving, mut features) = (0u64, 0u64);
     let mut progress = Progress::new("slam", frames.len() as u64);
     for (i, f) in frames.iter().enumerate() {
         let rgb = image::open(&f.rgb)
@@ -262,6 +268,8 @@ fn main() -> Result<()> {
             mapping.push(r.counts.mapping_us as f64 / 1e3);
         }
         inserted_per_pass[i / pass_len] += r.keyframe_inserted as usize;
+        moving += r.counts.features_moving as u64;
+        features += (r.counts.features + r.counts.features_moving) as u64;
         extract.push(r.extract_ms);
         track.push(r.track_ms);
         total.push(r.extract_ms + r.track_ms);
@@ -329,6 +337,12 @@ fn main() -> Result<()> {
         mapped.triangulated, mapped.fused, mapped.observations_added
     );
     println!("relocalisations (by bag of words): {relocalised}");
+    if args.motion_check {
+        println!(
+            "motion check: {moving} of {features} features dropped ({:.2} %)",
+            100.0 * moving as f64 / features.max(1) as f64
+        );
+    }
     if args.loop_closing {
         let mut detect = system.loop_detection_ms();
         detect.sort_by(f64::total_cmp);

@@ -214,12 +214,6 @@ impl MotionCheck {
         }
     }
 
-    /// Forgets the frames kept (after a relocalisation or a map change the
-    /// old poses are in another frame of reference).
-    pub fn reset(&mut self) {
-        self.history.clear();
-    }
-
     /// The regions of `frame` (tracked at `pose_cw`) that move unlike the
     /// camera, against the newest kept frame at least `gap_s` older; none
     /// until there is one.
@@ -237,14 +231,7 @@ impl MotionCheck {
             .as_ref()
             .is_none_or(|(size, _)| *size != (w, h))
         {
-            let (cw, ch) = (w.div_ceil(CELL), h.div_ceil(CELL));
-            let centres = (0..cw * ch)
-                .map(|c| {
-                    let (x, y) = ((c % cw) * CELL, (c / cw) * CELL);
-                    camera.undistort(x as f64 + CELL as f64 / 2.0, y as f64 + CELL as f64 / 2.0)
-                })
-                .collect();
-            self.cell_pixels = Some(((w, h), centres));
+            self.cell_pixels = Some(((w, h), cell_centres(camera, w, h)));
         }
         let p = &self.params;
         let Some(past) = self
@@ -387,6 +374,18 @@ impl MotionCheck {
             self.history.pop_front();
         }
     }
+}
+
+/// The ideal (undistorted) pixel of each depth cell's centre of a
+/// `width x height` image, row by row.
+fn cell_centres(camera: &Camera, width: usize, height: usize) -> Vec<(f64, f64)> {
+    let (cw, ch) = (width.div_ceil(CELL), height.div_ceil(CELL));
+    (0..cw * ch)
+        .map(|c| {
+            let (x, y) = ((c % cw) * CELL, (c / cw) * CELL);
+            camera.undistort(x as f64 + CELL as f64 / 2.0, y as f64 + CELL as f64 / 2.0)
+        })
+        .collect()
 }
 
 /// The dense depth warp: cells of the current depth (`now`) that, put
@@ -598,27 +597,24 @@ mod tests {
         NearestDepth::new(&depth, w, h, 5000.0)
     }
 
-    fn cell_centres(camera: &Camera) -> Vec<(f64, f64)> {
-        (0..160 * 120)
-            .map(|c| camera.undistort((c % 160 * 4) as f64 + 2.0, (c / 160 * 4) as f64 + 2.0))
-            .collect()
-    }
-
     #[test]
     fn the_depth_warp_finds_what_moved_into_free_space_and_nothing_in_a_still_scene() {
         let camera = Camera::new([500.0, 500.0, 320.0, 240.0], [0.0; 5], 5000.0, 0.0);
-        let cells = cell_centres(&camera);
+        let cells = cell_centres(&camera, 640, 480);
         let p = MotionCheckParams::default();
-        let still = Isometry3::identity();
-        // The square moved 80 px to the right; the camera did not move.
-        let regions = dense_regions(
-            &wall_with_square(Some(300)),
-            &cells,
-            &wall_with_square(Some(220)),
-            &still,
-            &camera,
-            &p,
-        );
+        // The camera does not move between the two views.
+        let warp = |now: Option<usize>, past: Option<usize>| {
+            dense_regions(
+                &wall_with_square(now),
+                &cells,
+                &wall_with_square(past),
+                &Isometry3::identity(),
+                &camera,
+                &p,
+            )
+        };
+        // The square moved 80 px to the right.
+        let regions = warp(Some(300), Some(220));
         assert_eq!(regions.len(), 1, "{regions:?}");
         let r = regions[0];
         // It covers the square now (grown over its surface, the part that
@@ -631,25 +627,11 @@ mod tests {
             !r.contains(200.0, 240.0) && !r.contains(460.0, 240.0),
             "{r:?}"
         );
-        // Nothing moved: nothing found; the square where it was: nothing.
-        let same = dense_regions(
-            &wall_with_square(Some(300)),
-            &cells,
-            &wall_with_square(Some(300)),
-            &still,
-            &camera,
-            &p,
-        );
+        // Nothing moved: nothing found.
+        let same = warp(Some(300), Some(300));
         assert!(same.is_empty(), "{same:?}");
         // The square left: the wall behind it is not in front of anything.
-        let left = dense_regions(
-            &wall_with_square(None),
-            &cells,
-            &wall_with_square(Some(300)),
-            &still,
-            &camera,
-            &p,
-        );
+        let left = warp(None, Some(300));
         assert!(left.is_empty(), "{left:?}");
     }
 

@@ -78,19 +78,47 @@ impl YoloSettings {
     /// problem is an [`InputError`] that names the key or file. Without
     /// `model`, the export of [`MODELS`] for `input_size` is used.
     pub fn from_config(cfg: &ServiceConfig) -> Result<Self> {
-        let input_size = cfg.input_size.map_or(DEFAULT_INPUT_SIZE, |n| n as usize);
+        // A known export named by `model` or by the file name of
+        // `model_path` brings its own input size, so pointing `model_path`
+        // at the shared 320 file works without also setting `input_size`.
+        let named_export = {
+            let file_name = cfg
+                .model_path
+                .as_deref()
+                .and_then(|p| p.file_name())
+                .and_then(|n| n.to_str());
+            let name = if cfg.model.is_empty() {
+                file_name.unwrap_or("")
+            } else {
+                cfg.model.as_str()
+            };
+            MODELS.iter().find(|(_, n, _)| *n == name)
+        };
+        let input_size = match (cfg.input_size, named_export) {
+            (Some(n), Some(m)) if n as usize != m.0 => {
+                return Err(InputError(format!(
+                    "key `services.segmenter.input_size`: {n}, but the model '{}' is the {} export; drop `input_size` or choose the model for {n}",
+                    m.1, m.0
+                ))
+                .into())
+            }
+            (Some(n), _) => n as usize,
+            (None, Some(m)) => m.0,
+            (None, None) => DEFAULT_INPUT_SIZE,
+        };
         if input_size == 0 || !input_size.is_multiple_of(32) {
             return Err(InputError(format!(
                 "key `services.segmenter.input_size`: {input_size} must be a positive multiple of 32"
             ))
             .into());
         }
-        let (file, known) = if cfg.model.is_empty() {
-            let m = export_for(input_size).map_err(InputError)?;
+        let (file, known) = if !cfg.model.is_empty() {
+            (cfg.model.as_str(), named_export)
+        } else if let Some(m) = named_export {
             (m.1, Some(m))
         } else {
-            let named = MODELS.iter().find(|(_, name, _)| *name == cfg.model);
-            (cfg.model.as_str(), named)
+            let m = export_for(input_size).map_err(InputError)?;
+            (m.1, Some(m))
         };
         let sha = match (cfg.model_sha256.is_empty(), known) {
             (false, _) => cfg.model_sha256.as_str(),
@@ -263,6 +291,28 @@ mod tests {
         let err = export_for(416).unwrap_err();
         assert!(
             err.contains("services.segmenter.input_size") && err.contains("320, 480, 640"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn a_model_path_to_a_known_export_brings_its_input_size() {
+        let shared = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../../shared/models/yolov8n-seg_f32.onnx");
+        let cfg = ServiceConfig {
+            model_path: Some(shared),
+            ..Default::default()
+        };
+        assert_eq!(YoloSettings::from_config(&cfg).unwrap().input_size, 320);
+        let mismatched = ServiceConfig {
+            input_size: Some(640),
+            ..cfg
+        };
+        let err = YoloSettings::from_config(&mismatched)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("input_size") && err.contains("640") && err.contains("320 export"),
             "{err}"
         );
     }

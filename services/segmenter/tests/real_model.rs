@@ -171,10 +171,23 @@ fn bad_model_files_and_runtime_give_named_errors() {
 
 #[test]
 fn an_input_size_the_model_does_not_take_is_a_configuration_error() {
-    // The shared export is fixed at 320: 640 would crash every inference.
+    // A user's own export (a name the product does not know, so only the
+    // model's input shape can tell) fixed at 320: 640 would crash every
+    // inference. (A known export with the wrong size is refused earlier, by
+    // the configuration: see onnx.rs's unit tests.)
+    let dir = std::env::temp_dir().join(format!("dynslam-own-export-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let own = dir.join("my-yolo.onnx");
+    std::fs::remove_file(&own).ok();
+    std::os::unix::fs::symlink(
+        std::fs::canonicalize(repo().join("../shared/models/yolov8n-seg_f32.onnx")).unwrap(),
+        &own,
+    )
+    .unwrap();
     let cfg = ServiceConfig {
-        model: "yolov8n-seg_f32.onnx".into(),
-        model_path: Some(repo().join("../shared/models/yolov8n-seg_f32.onnx")),
+        model: "my-yolo.onnx".into(),
+        model_sha256: segmenter::onnx::export_for(320).unwrap().2.into(),
+        model_path: Some(own),
         input_size: Some(640),
         ..Default::default()
     };
@@ -182,6 +195,7 @@ fn an_input_size_the_model_does_not_take_is_a_configuration_error() {
     let err = YoloSeg::load(init_runtime(&runtime()).unwrap(), settings)
         .err()
         .unwrap();
+    std::fs::remove_dir_all(&dir).ok();
     let msg = format!("{err:#}");
     assert!(
         msg.contains("services.segmenter.input_size") && msg.contains("320x320"),

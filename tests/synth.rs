@@ -233,5 +233,48 @@ fn masks_on_people_passing_in_front_of_the_tum_scene_meet_the_targets() {
     let labels = image::open(saved.join("0000.png")).unwrap().to_luma8();
     assert_eq!(labels.dimensions(), (640, 480));
     assert!(labels.pixels().any(|p| p.0[0] != 0), "frame 0 has a person");
+
+    // By cause: every scored person-frame is in one cause or `plain`; only
+    // propagated frames have people who entered since their keyframe.
+    let samples = |side: &str, cause: &str| scores[side][cause]["samples"].as_u64().unwrap();
+    let seg: u64 = ["border_cut", "small", "plain"]
+        .iter()
+        .map(|c| samples("segmenter_by_cause", c))
+        .sum();
+    assert!(seg >= score("segmenter_samples") as u64, "{scores}");
+    assert!(samples("segmenter_by_cause", "plain") > 0, "{scores}");
+    assert_eq!(samples("segmenter_by_cause", "entered"), 0, "{scores}");
+    assert_eq!(scores["ignore_regions"], false);
+
+    // Ignore regions: the whole image ignored leaves nobody to score; an
+    // ignore image of another size is an error naming it.
+    let eval_limited = || {
+        Command::new(dynslam())
+            .arg("masks-eval")
+            .arg(&out)
+            .args(["--json", "--limit", "12"])
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .output()
+            .unwrap()
+    };
+    image::GrayImage::from_pixel(640, 480, image::Luma([1]))
+        .save(out.join("ignore.png"))
+        .unwrap();
+    let o = eval_limited();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let ignored: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(ignored["ignore_regions"], true);
+    assert_eq!(ignored["segmenter_samples"], 0, "{ignored}");
+    assert_eq!(ignored["propagator_samples"], 0, "{ignored}");
+    image::GrayImage::new(320, 240)
+        .save(out.join("ignore.png"))
+        .unwrap();
+    let o = eval_limited();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("ignore.png") && err.contains("320x240"),
+        "{err}"
+    );
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -135,11 +135,17 @@ pub struct MaskList {
 impl MaskList {
     /// `None` when `folder` has no `masks.txt` (not a synthesised sequence).
     pub fn open(folder: &Path) -> Result<Option<Self>, SourceError> {
-        if !folder.join("masks.txt").is_file() {
+        Self::open_list(folder, "masks.txt")
+    }
+
+    /// The same for another list of label images in `folder` (as
+    /// masks-eval's `ignore.txt`); `None` when there is no such file.
+    pub fn open_list(folder: &Path, list: &str) -> Result<Option<Self>, SourceError> {
+        if !folder.join(list).is_file() {
             return Ok(None);
         }
         Ok(Some(Self {
-            entries: read_list(folder, "masks.txt")?.entries,
+            entries: read_list(folder, list)?.entries,
         }))
     }
 

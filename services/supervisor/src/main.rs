@@ -720,6 +720,27 @@ fn masks_eval(
         supervisor::mask_eval::FOUND_IOU,
         s.propagator_iou_found
     );
+    let cause = |name: &str, c: &supervisor::mask_eval::ByCause| {
+        let part = |label: &str, x: &supervisor::mask_eval::Subset| {
+            if x.samples == 0 {
+                format!("{label} -")
+            } else {
+                format!("{label} {:.3} ({})", x.iou, x.samples)
+            }
+        };
+        println!(
+            "{name} by cause: {}  {}  {}  {}",
+            part("entered since keyframe", &c.entered),
+            part("border-cut", &c.border_cut),
+            part("small", &c.small),
+            part("none of these", &c.plain)
+        );
+    };
+    cause("segmenter ", &s.segmenter_by_cause);
+    cause("propagator", &s.propagator_by_cause);
+    if s.ignore_regions {
+        println!("ignore regions (ignore.png / ignore.txt) left out of every score");
+    }
     let offsets: Vec<String> = s
         .propagator_iou_by_offset
         .iter()

@@ -5,7 +5,13 @@
 //! the frames between are propagated from it (the propagator's score, per
 //! distance from the keyframe), exactly as the pipeline's routing would do
 //! with a fixed keyframe interval. Scores are per ground-truth person, see
-//! [`scenes::truth`].
+//! [`scenes::truth`], also split by why a person may be hard ([`ByCause`]).
+//!
+//! Ignore regions: real people in the source footage are not in the
+//! synthesised ground truth, and the segmenter is right to mask them. A
+//! sequence folder may hold `ignore.png` (one label image for every frame)
+//! and/or `ignore.txt` (per-frame label images, listed like `masks.txt`);
+//! their non-zero pixels are left out of every score.
 
 use std::io::Write;
 use std::path::Path;
@@ -40,8 +46,122 @@ pub struct MaskScores {
     /// prompting keyframe (IoU >= `FOUND_IOU` there): the propagator's own
     /// quality, without the segmenter's misses.
     pub propagator_iou_found: f64,
+    /// The segmenter's and the propagator's scores by cause.
+    pub segmenter_by_cause: ByCause,
+    pub propagator_by_cause: ByCause,
+    /// Whether ignore regions (`ignore.png` / `ignore.txt`) were applied.
+    pub ignore_regions: bool,
     pub segmenter_ms_p50: f64,
     pub propagator_ms_p50: f64,
+}
+
+/// Mean IoU over a subset of the scored person-frames.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct Subset {
+    pub iou: f64,
+    pub samples: usize,
+    #[serde(skip)]
+    sum: f64,
+}
+
+impl Subset {
+    fn add(&mut self, iou: f64) {
+        self.sum += iou;
+        self.samples += 1;
+        self.iou = self.sum / self.samples as f64;
+    }
+}
+
+/// Scores split by why a person may be hard to mask (a person can be in
+/// several): `entered` (propagated frames only: not scored on the keyframe
+/// that prompted the propagator, so it walked in or grew past `min_px`
+/// since), `border_cut` (touches the image border), `small` (under
+/// [`scenes::truth::SMALL_SHARE`] of the image), `plain` (none of these).
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct ByCause {
+    pub entered: Subset,
+    pub border_cut: Subset,
+    pub small: Subset,
+    pub plain: Subset,
+}
+
+impl ByCause {
+    fn add(&mut self, s: &InstanceIou, entered: bool, image_px: usize) {
+        let small = s.small(image_px);
+        if entered {
+            self.entered.add(s.iou);
+        }
+        if s.border_cut {
+            self.border_cut.add(s.iou);
+        }
+        if small {
+            self.small.add(s.iou);
+        }
+        if !(entered || s.border_cut || small) {
+            self.plain.add(s.iou);
+        }
+    }
+}
+
+/// The ignore regions of a sequence folder (see the module docs).
+struct IgnoreRegions {
+    everywhere: Option<image::GrayImage>,
+    per_frame: Option<MaskList>,
+}
+
+impl IgnoreRegions {
+    fn open(dataset: &Path) -> Result<Self> {
+        let png = dataset.join("ignore.png");
+        let everywhere = if png.is_file() {
+            Some(
+                image::open(&png)
+                    .with_context(|| format!("{}: not a readable image", png.display()))?
+                    .to_luma8(),
+            )
+        } else {
+            None
+        };
+        Ok(Self {
+            everywhere,
+            per_frame: MaskList::open_list(dataset, "ignore.txt")?,
+        })
+    }
+
+    fn any(&self) -> bool {
+        self.everywhere.is_some() || self.per_frame.is_some()
+    }
+
+    /// The frame's ignore mask (union of both sources), `None` if neither.
+    fn at(&self, timestamp: f64, w: usize, h: usize) -> Result<Option<Vec<u8>>> {
+        if !self.any() {
+            return Ok(None);
+        }
+        let mut out = vec![0u8; w * h];
+        let per_frame = match &self.per_frame {
+            // A frame ignore.txt does not list has no ignore region of its own.
+            Some(list) if list.path_at(timestamp).is_some() => {
+                Some(list.load_at(timestamp).map_err(anyhow::Error::msg)?)
+            }
+            _ => None,
+        };
+        for (img, what) in [
+            (self.everywhere.as_ref(), "ignore.png"),
+            (per_frame.as_ref(), "the ignore.txt entry"),
+        ] {
+            let Some(img) = img else { continue };
+            if (img.width() as usize, img.height() as usize) != (w, h) {
+                bail!(
+                    "{what} for frame {timestamp:.6} is {}x{}, the frame {w}x{h}",
+                    img.width(),
+                    img.height()
+                );
+            }
+            for (o, &m) in out.iter_mut().zip(img.as_raw()) {
+                *o |= (m != 0) as u8;
+            }
+        }
+        Ok(Some(out))
+    }
 }
 
 /// A person counts as found by the segmenter at this keyframe IoU.
@@ -92,6 +212,8 @@ pub fn evaluate(
     let mut prompted_ids: Vec<u8> = Vec::new();
     let mut found_ids: Vec<u8> = Vec::new();
     let mut found_iou = Vec::new();
+    let ignore = IgnoreRegions::open(dataset)?;
+    let (mut seg_cause, mut prop_cause) = (ByCause::default(), ByCause::default());
     let mut saved = save.map(SavedMasks::create).transpose()?;
     let mut progress = Progress::new("masks-eval", frames.len() as u64);
     for (k, frame) in frames.iter().enumerate() {
@@ -119,7 +241,8 @@ pub fn evaluate(
             propagator.propagate(rgb.as_raw(), w, h, &mut labels);
             prop_ms.push(t.elapsed().as_secs_f64() * 1e3);
         }
-        let scores = instance_ious(&labels, gt.as_raw(), min_px);
+        let ignored = ignore.at(frame.timestamp, w, h)?;
+        let scores = instance_ious(&labels, gt.as_raw(), ignored.as_deref(), w, min_px);
         if let Some(saved) = saved.as_mut() {
             saved.write(k, offset, w, h, &labels, &scores)?;
         }
@@ -131,8 +254,12 @@ pub fn evaluate(
                 .map(|s| s.id)
                 .collect();
             seg_iou.extend(scores.iter().map(|s| s.iou));
+            for s in &scores {
+                seg_cause.add(s, false, w * h);
+            }
         } else {
             for s in scores {
+                prop_cause.add(&s, !prompted_ids.contains(&s.id), w * h);
                 prop_iou.push(s.iou);
                 by_offset[offset - 1].push(s.iou);
                 if prompted_ids.contains(&s.id) {
@@ -162,6 +289,9 @@ pub fn evaluate(
         propagator_iou_by_offset: by_offset.iter().map(|v| mean(v)).collect(),
         propagator_iou_prompted: mean(&prompted_iou),
         propagator_iou_found: mean(&found_iou),
+        segmenter_by_cause: seg_cause,
+        propagator_by_cause: prop_cause,
+        ignore_regions: ignore.any(),
         segmenter_ms_p50: pipeline::stats::percentile(&seg_ms, 50.0),
         propagator_ms_p50: pipeline::stats::percentile(&prop_ms, 50.0),
     })
@@ -180,7 +310,7 @@ impl SavedMasks {
         let file =
             std::fs::File::create(&path).with_context(|| format!("creating {}", path.display()))?;
         let mut scores = std::io::BufWriter::new(file);
-        writeln!(scores, "frame,after_keyframe,person,pixels,iou")?;
+        writeln!(scores, "frame,after_keyframe,person,pixels,iou,border_cut")?;
         Ok(Self {
             dir: dir.to_path_buf(),
             scores,
@@ -208,8 +338,8 @@ impl SavedMasks {
         for s in scores {
             writeln!(
                 self.scores,
-                "{frame},{offset},{},{},{:.4}",
-                s.id, s.pixels, s.iou
+                "{frame},{offset},{},{},{:.4},{}",
+                s.id, s.pixels, s.iou, s.border_cut as u8
             )?;
         }
         Ok(())

@@ -108,6 +108,8 @@ impl MaskRecorder {
                             for p in scenes::truth::instance_ious(
                                 job.labels.as_raw(),
                                 gt.as_raw(),
+                                None,
+                                gt.width() as usize,
                                 MIN_PERSON_PX,
                             ) {
                                 writeln!(out, "{},{},{:.6}", job.seq, job.source, p.iou)?;

@@ -580,7 +580,13 @@ fn mask_scores(
             continue;
         };
         let none = vec![0u8; gt.as_raw().len()];
-        for s in scenes::truth::instance_ious(&none, gt.as_raw(), MIN_PERSON_PX) {
+        for s in scenes::truth::instance_ious(
+            &none,
+            gt.as_raw(),
+            None,
+            gt.width() as usize,
+            MIN_PERSON_PX,
+        ) {
             ious.push((r.seq, "none".to_string(), s.iou));
         }
     }

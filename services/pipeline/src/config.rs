@@ -357,11 +357,12 @@ impl Default for ServicesConfig {
             camera_reader: ServiceConfig::default(),
             segmenter: ServiceConfig {
                 backend: "yolov8-seg".into(),
-                // No model: the segmenter takes its export for input_size.
+                // No model and no input_size: the segmenter takes its
+                // default export (480); a model or model_path naming a
+                // known export brings that export's size.
                 classes: DEFAULT_DYNAMIC_CLASSES.map(String::from).to_vec(),
                 score_threshold: Some(0.25),
                 iou_threshold: Some(0.7),
-                input_size: Some(480),
                 threads: Some(2),
                 ..ServiceConfig::default()
             },

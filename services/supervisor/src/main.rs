@@ -430,7 +430,11 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             if let Some(l) = limit {
                 cfg.source.limit = l;
             }
-            let known = ["static", "a", "b", "c", "d", "e"];
+            // The rows the ablation has (the static one included), from its one list.
+            let known: Vec<&str> = supervisor::ablation::variants(Some(Default::default()))
+                .iter()
+                .map(|v| v.key)
+                .collect();
             if let Some(bad) = only.iter().find(|o| !known.contains(&o.as_str())) {
                 anyhow::bail!("--only: unknown row '{bad}' (known: {})", known.join(", "));
             }

@@ -442,14 +442,7 @@ impl System {
         if !self.params.motion_check || self.params.is_monocular() {
             return 0;
         }
-        let regions = self.motion.regions(
-            frame,
-            input.depth,
-            &tracked.pose_cw,
-            input.timestamp,
-            &self.camera,
-        );
-        self.motion.remember(
+        let regions = self.motion.observe(
             frame,
             input.depth,
             &tracked.pose_cw,

@@ -214,13 +214,29 @@ impl MotionCheck {
         }
     }
 
-    /// The regions of `frame` (tracked at `pose_cw`) that move unlike the
-    /// camera, against the newest kept frame at least `gap_s` older; none
-    /// until there is one.
-    pub fn regions(
+    /// The regions of `frame` (tracked at `pose_cw`, with its raw depth)
+    /// that move unlike the camera, then the frame kept for the frames
+    /// after it. The depth is put into cells once, for both.
+    pub fn observe(
         &mut self,
         frame: &Frame,
         depth: &[u16],
+        pose_cw: &Isometry3<f64>,
+        timestamp: f64,
+        camera: &Camera,
+    ) -> Vec<MovingRegion> {
+        let now = NearestDepth::new(depth, frame.width, frame.height, camera.depth_scale);
+        let regions = self.regions(frame, &now, pose_cw, timestamp, camera);
+        self.remember(frame, now, pose_cw, timestamp);
+        regions
+    }
+
+    /// The regions of `frame` that move unlike the camera, against the
+    /// newest kept frame at least `gap_s` older; none until there is one.
+    fn regions(
+        &mut self,
+        frame: &Frame,
+        now: &NearestDepth,
         pose_cw: &Isometry3<f64>,
         timestamp: f64,
         camera: &Camera,
@@ -312,10 +328,9 @@ impl MotionCheck {
         // free space (no shift; an object that entered or moved onto it).
         let mut out = clusters(&moved, &matched_at, p);
         out.extend(clusters(&appeared, &seen_at, p));
-        let now = NearestDepth::new(depth, w, h, camera.depth_scale);
         let cells = &self.cell_pixels.as_ref().expect("computed above").1;
         out.extend(dense_regions(
-            &now,
+            now,
             cells,
             &past.depth,
             &now_to_past,
@@ -332,7 +347,7 @@ impl MotionCheck {
         {
             let now_to_recent = recent.pose_cw * pose_cw.inverse();
             out.extend(dense_regions(
-                &now,
+                now,
                 cells,
                 &recent.depth,
                 &now_to_recent,
@@ -347,13 +362,12 @@ impl MotionCheck {
     /// later frames to compare with; frames no longer needed are dropped
     /// (only the newest older than the gap of the newest frame is ever
     /// used).
-    pub fn remember(
+    fn remember(
         &mut self,
         frame: &Frame,
-        depth: &[u16],
+        depth: NearestDepth,
         pose_cw: &Isometry3<f64>,
         timestamp: f64,
-        camera: &Camera,
     ) {
         if self
             .history
@@ -367,7 +381,7 @@ impl MotionCheck {
             timestamp,
             frame: frame.clone(),
             pose_cw: *pose_cw,
-            depth: NearestDepth::new(depth, frame.width, frame.height, camera.depth_scale),
+            depth,
         });
         let gap = self.params.gap_s;
         while self.history.len() >= 2 && timestamp - self.history[1].timestamp >= gap {

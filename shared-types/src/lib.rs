@@ -257,6 +257,10 @@ pub mod mask_flags {
     /// worker's turn; no labels (0x0) follow. Tells SLAM's peers at once
     /// that these masks will never come.
     pub const GONE: u32 = 1 << 1;
+    /// The propagator saw something move that it does not follow (a person
+    /// who walked in after the keyframe): the supervisor routes the next
+    /// frame to the segmenter as if SLAM had asked for a keyframe.
+    pub const SEGMENT_WANTED: u32 = 1 << 2;
 }
 
 /// User header of a masks sample. The slice payload is a `width*height` label

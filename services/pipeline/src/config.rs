@@ -274,6 +274,11 @@ pub struct RoutingConfig {
     pub segment_every_frame: bool,
     /// Run without any masks: every frame is routed Skip (ablation).
     pub no_masks: bool,
+    /// The propagator asks for a segmenter run when something moves outside
+    /// the objects it follows (a person walking in after the keyframe); the
+    /// next frame is then routed to the segmenter (at most one request per
+    /// 5 frames). Off: newcomers wait for `max_segment_age`.
+    pub early_segment_requests: bool,
 }
 
 impl Default for RoutingConfig {
@@ -282,6 +287,7 @@ impl Default for RoutingConfig {
             max_segment_age: 10,
             segment_every_frame: false,
             no_masks: false,
+            early_segment_requests: true,
         }
     }
 }

@@ -40,6 +40,12 @@ pub trait MaskModel {
     /// no longer held when the masks come.
     fn keep(&mut self, _frame: &FrameView) {}
 
+    /// Whether the frame just inferred asks for a segmenter run now (the
+    /// propagator saw something it does not follow); asked once per frame.
+    fn wants_segment(&mut self) -> bool {
+        false
+    }
+
     /// One line for the log at exit (e.g. how prompts were used).
     fn summary(&self) -> Option<String> {
         None
@@ -227,6 +233,9 @@ fn publish_masks(
             }
             header.instances[..n].copy_from_slice(&instances[..n]);
             header.num_instances = n as u32;
+            if model.wants_segment() {
+                header.flags |= mask_flags::SEGMENT_WANTED;
+            }
         }
         Err(e) => {
             // The frame goes on unmasked rather than stalling the pipeline.

@@ -5,10 +5,13 @@
 //! - [`lk`]: pyramidal Lucas-Kanade point tracking (Bouguet's formulation).
 //! - [`propagate`]: per-object motion (robust affine + interpolated residual
 //!   motion, so that non-rigid parts follow) and mask warping; a `MaskModel`.
+//! - [`newcomers`]: regions that move unlike the camera outside every
+//!   followed object: an early segmenter request.
 //! - [`sam2`]: the `sam2` backend, SAM 2's image encoder and prompt/mask
 //!   decoder through ONNX Runtime, for users who have its weights.
 
 pub mod lk;
+pub mod newcomers;
 pub mod propagate;
 pub mod pyramid;
 pub mod sam2;

@@ -15,6 +15,9 @@ pub struct LkParams {
     /// Reject a point whose window has too little texture (min eigenvalue of
     /// the structure tensor per pixel).
     pub min_eigen: f32,
+    /// The finest pyramid level refined (0: full resolution; 1: half,
+    /// a quarter of the cost per level saved and precision about a pixel).
+    pub finest_level: usize,
 }
 
 impl Default for LkParams {
@@ -24,6 +27,7 @@ impl Default for LkParams {
             iterations: 10,
             epsilon: 0.02,
             min_eigen: 1e-2,
+            finest_level: 0,
         }
     }
 }
@@ -61,7 +65,8 @@ fn track_one(
     let (mut gx, mut gy) = (guess.0 / top, guess.1 / top);
     let mut grads = Vec::with_capacity(n as usize);
     let mut patch = Vec::with_capacity((2 * p.radius + 3).pow(2));
-    for level in (0..levels).rev() {
+    let finest = p.finest_level.min(levels - 1);
+    for level in (finest..levels).rev() {
         let scale = (1u32 << level) as f32;
         let (a, b) = (&prev.levels[level], &next.levels[level]);
         let (ux, uy) = (pt.0 / scale, pt.1 / scale);
@@ -124,6 +129,9 @@ fn track_one(
             gy *= 2.0;
         }
     }
+    // Ended on a coarser level: its estimate in full-resolution pixels.
+    let rest = (1u32 << finest.saturating_sub(1)) as f32;
+    let (gx, gy) = (gx * rest, gy * rest);
     let (x, y) = (pt.0 + gx, pt.1 + gy);
     let base = &next.levels[0];
     (x.is_finite()

@@ -8,6 +8,7 @@ use std::process::ExitCode;
 use clap::Parser;
 use pipeline::mask_worker::{self, model_from_config, ModelFactory};
 use pipeline::runtime::{run_service, ServiceArgs};
+use propagator::newcomers::NewcomerCheck;
 use propagator::propagate::{LkPropagator, PropagatorParams};
 use propagator::sam2::{Sam2Propagator, Sam2Settings};
 use shared_types::{MaskSource, ServiceKind};
@@ -22,8 +23,13 @@ struct Args {
 fn main() -> ExitCode {
     let args = Args::parse();
     run_service(ServiceKind::Propagator, &args.service, |ctx| {
-        let lk: &ModelFactory =
-            &|_ctx| Ok(Box::new(LkPropagator::new(PropagatorParams::default())));
+        let lk: &ModelFactory = &|ctx| {
+            let mut lk = LkPropagator::new(PropagatorParams::default());
+            if ctx.config.routing.early_segment_requests {
+                lk = lk.with_newcomer_check(NewcomerCheck::for_camera(&ctx.config.camera));
+            }
+            Ok(Box::new(lk))
+        };
         let sam2: &ModelFactory = &|ctx| {
             let settings = Sam2Settings::from_config(&ctx.config.services.propagator)?;
             let env = onnx_runtime::init_runtime(&ctx.config.onnxruntime)?;

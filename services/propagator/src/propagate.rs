@@ -20,6 +20,7 @@ use pipeline::views::{FrameView, MasksView};
 use shared_types::Instance;
 
 use crate::lk::{track, LkParams};
+use crate::newcomers::{DepthImage, Newcomer, NewcomerCheck};
 use crate::pyramid::{Gray, Pyramid};
 
 #[derive(Debug, Clone, Copy)]
@@ -198,6 +199,10 @@ pub struct LkPropagator {
     prompts_behind: u64,
     /// Prompts whose image was no longer at hand (ignored).
     prompts_lost: u64,
+    /// Early segmenter requests for what no followed object covers.
+    newcomers: Option<NewcomerCheck>,
+    /// What the last propagated frame asked for, until taken.
+    newcomer: Option<Newcomer>,
 }
 
 impl LkPropagator {
@@ -212,7 +217,22 @@ impl LkPropagator {
             prompts_held: 0,
             prompts_behind: 0,
             prompts_lost: 0,
+            newcomers: None,
+            newcomer: None,
         }
+    }
+
+    /// Also looks for newcomers on every frame propagated to with depth
+    /// ([`Self::take_newcomer`]).
+    pub fn with_newcomer_check(mut self, check: NewcomerCheck) -> Self {
+        self.newcomers = Some(check);
+        self
+    }
+
+    /// The newcomer the last propagated frame found (an early segmenter
+    /// request), once.
+    pub fn take_newcomer(&mut self) -> Option<Newcomer> {
+        self.newcomer.take()
     }
 
     /// [`Self::propagate`] to frame `seq`, whose image is then kept for a
@@ -221,11 +241,12 @@ impl LkPropagator {
         &mut self,
         seq: u64,
         rgb: &[u8],
+        depth: Option<DepthImage>,
         width: usize,
         height: usize,
         labels: &mut [u8],
     ) -> Vec<Instance> {
-        let instances = self.propagate(rgb, width, height, labels);
+        let instances = self.propagate_rgbd(rgb, depth, width, height, labels);
         self.remember(seq);
         instances
     }
@@ -325,6 +346,20 @@ impl LkPropagator {
         height: usize,
         labels: &mut [u8],
     ) -> Vec<Instance> {
+        self.propagate_rgbd(rgb, None, width, height, labels)
+    }
+
+    /// [`Self::propagate`]; with the frame's depth, the newcomer check (when
+    /// configured) runs too.
+    pub fn propagate_rgbd(
+        &mut self,
+        rgb: &[u8],
+        depth: Option<DepthImage>,
+        width: usize,
+        height: usize,
+        labels: &mut [u8],
+    ) -> Vec<Instance> {
+        self.newcomer = None;
         let cur = Pyramid::new(
             Gray::from_rgb(rgb, width, height),
             self.params.pyramid_levels,
@@ -342,16 +377,45 @@ impl LkPropagator {
             return Vec::new();
         };
         let params = self.params;
-        let mut kept = Vec::new();
-        for mut obj in std::mem::take(&mut self.objects) {
-            if let Some((mask, motion)) =
-                follow(&prev, &cur, &obj.mask, obj.motion, width, height, &params)
-            {
-                obj.mask = mask;
-                obj.motion = motion;
-                kept.push(obj);
+        // What the followed objects cover in the previous frame: the
+        // newcomer check looks only outside it.
+        let covered = (self.newcomers.is_some() && depth.is_some()).then(|| {
+            let mut covered = vec![false; width * height];
+            for obj in &self.objects {
+                for (c, &m) in covered.iter_mut().zip(&obj.mask) {
+                    *c |= m;
+                }
             }
-        }
+            covered
+        });
+        let objects = std::mem::take(&mut self.objects);
+        let (prev_ref, cur_ref) = (&*prev, &cur);
+        // The check runs beside the objects' propagation, on another core
+        // when one is free: it adds no latency to the masks.
+        let (kept, newcomer) = std::thread::scope(|scope| {
+            let check = match (self.newcomers.as_mut(), depth, covered) {
+                (Some(check), Some(depth), Some(covered)) => Some(
+                    scope.spawn(move || check.check(prev_ref, cur_ref, &covered, depth, params.lk)),
+                ),
+                _ => None,
+            };
+            let mut kept = Vec::new();
+            for mut obj in objects {
+                if let Some((mask, motion)) = follow(
+                    prev_ref, cur_ref, &obj.mask, obj.motion, width, height, &params,
+                ) {
+                    obj.mask = mask;
+                    obj.motion = motion;
+                    kept.push(obj);
+                }
+            }
+            let newcomer = check.and_then(|h| {
+                h.join()
+                    .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+            });
+            (kept, newcomer)
+        });
+        self.newcomer = newcomer;
         self.objects = kept;
         self.prev = Some(Arc::new(cur));
         let mut out = Vec::new();
@@ -671,7 +735,24 @@ impl MaskModel for LkPropagator {
 
     fn infer(&mut self, frame: &FrameView, labels: &mut [u8]) -> Result<Vec<Instance>> {
         let (w, h) = (frame.width(), frame.height());
-        Ok(self.propagate_frame(frame.header.seq, frame.rgb, w, h, labels))
+        let depth = frame.depth.map(|raw| DepthImage {
+            raw,
+            per_metre: frame.header.depth_scale,
+        });
+        let instances = self.propagate_frame(frame.header.seq, frame.rgb, depth, w, h, labels);
+        if let Some(n) = self.newcomer {
+            tracing::debug!(
+                seq = frame.header.seq,
+                cells = n.cells,
+                bbox = ?n.bbox,
+                "something moves outside the followed objects: segmenter run wanted"
+            );
+        }
+        Ok(instances)
+    }
+
+    fn wants_segment(&mut self) -> bool {
+        self.take_newcomer().is_some()
     }
 
     fn prompt(&mut self, frame: Option<&FrameView>, masks: &MasksView) {
@@ -702,8 +783,15 @@ impl MaskModel for LkPropagator {
     }
 
     fn summary(&self) -> Option<String> {
+        let requests = match &self.newcomers {
+            Some(check) => format!(
+                "; early segmenter requests (something moving outside the followed objects): {}",
+                check.requests()
+            ),
+            None => String::new(),
+        };
         Some(format!(
-            "segmenter prompts used: {} ({} on their own frame, {} carried forward from a kept frame), ignored (image gone): {}",
+            "segmenter prompts used: {} ({} on their own frame, {} carried forward from a kept frame), ignored (image gone): {}{requests}",
             self.prompts_held + self.prompts_behind,
             self.prompts_held,
             self.prompts_behind,

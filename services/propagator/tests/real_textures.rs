@@ -62,7 +62,7 @@ fn a_late_prompt_is_carried_forward_from_its_own_frame() {
         let (rgb, _) = render(&bg, &tex, (0.0, 0.0), centre(k), 1.0);
         labels.fill(0);
         assert!(p
-            .propagate_frame(k as u64, &rgb, W, H, &mut labels)
+            .propagate_frame(k as u64, &rgb, None, W, H, &mut labels)
             .is_empty());
     }
     let (_, at3) = render(&bg, &tex, (0.0, 0.0), centre(3), 1.0);
@@ -75,7 +75,7 @@ fn a_late_prompt_is_carried_forward_from_its_own_frame() {
     assert!(p.prompt_behind(3, &labels3, &[inst]));
     let (rgb7, truth7) = render(&bg, &tex, (0.0, 0.0), centre(7), 1.0);
     labels.fill(0);
-    let found = p.propagate_frame(7, &rgb7, W, H, &mut labels);
+    let found = p.propagate_frame(7, &rgb7, None, W, H, &mut labels);
     assert_eq!(found.len(), 1);
     let v = iou(&labels, &truth7);
     assert!(v >= 0.8, "IoU at frame 7 after a prompt on frame 3: {v}");
@@ -89,7 +89,12 @@ fn a_late_prompt_is_carried_forward_from_its_own_frame() {
     assert!(fresh.prompt_behind(0, &labels0, &[inst]));
     let (rgb1, truth1) = render(&bg, &tex, (0.0, 0.0), centre(1), 1.0);
     labels.fill(0);
-    assert_eq!(fresh.propagate_frame(1, &rgb1, W, H, &mut labels).len(), 1);
+    assert_eq!(
+        fresh
+            .propagate_frame(1, &rgb1, None, W, H, &mut labels)
+            .len(),
+        1
+    );
     assert!(iou(&labels, &truth1) >= 0.85);
 }
 

@@ -745,6 +745,21 @@ fn masks_eval(
     if s.ignore_regions {
         println!("ignore regions (ignore.png / ignore.txt) left out of every score");
     }
+    println!(
+        "early segments (the propagator saw something move that it does not follow): {}",
+        s.early_segments
+    );
+    let e = &s.entries;
+    println!(
+        "people coming into view: {}, masked (IoU >= {}) within {} frames: {} ({:.0} %), later: {}, median delay {:.0} frames",
+        e.count,
+        supervisor::mask_eval::MASKED_IOU,
+        supervisor::mask_eval::ENTRY_FRAMES,
+        e.masked_in_time,
+        100.0 * e.in_time_share(),
+        e.masked_later,
+        e.delay_frames_p50
+    );
     let offsets: Vec<String> = s
         .propagator_iou_by_offset
         .iter()

@@ -3,9 +3,14 @@
 //!
 //! Every `keyframe_every`-th frame is segmented (the segmenter's score),
 //! the frames between are propagated from it (the propagator's score, per
-//! distance from the keyframe), exactly as the pipeline's routing would do
-//! with a fixed keyframe interval. Scores are per ground-truth person, see
-//! [`scenes::truth`], also split by why a person may be hard ([`ByCause`]).
+//! distance from the keyframe), as the pipeline's routing would do with a
+//! fixed keyframe interval; with `routing.early_segment_requests` (the
+//! default) the frame after one where the propagator saw something move
+//! that it does not follow is segmented too, as in the pipeline. Scores are
+//! per ground-truth person, see [`scenes::truth`], also split by why a
+//! person may be hard ([`ByCause`]); people who come into view (walk in,
+//! or step out from behind something) are followed until they are masked
+//! ([`Entries`]).
 //!
 //! Ignore regions: real people in the source footage are not in the
 //! synthesised ground truth, and the segmenter is right to mask them. A
@@ -17,10 +22,12 @@ use std::io::Write;
 use std::path::Path;
 
 use anyhow::{bail, Context, Result};
+use camera_reader::decode::decode_depth_into;
 use camera_reader::source::{tum_folder, MaskList};
 use onnx_runtime::init_runtime;
 use pipeline::config::PipelineConfig;
 use pipeline::progress::Progress;
+use propagator::newcomers::{DepthImage, NewcomerCheck};
 use propagator::propagate::{LkPropagator, PropagatorParams};
 use scenes::truth::{instance_ious, InstanceIou};
 use segmenter::onnx::{YoloSeg, YoloSettings};
@@ -51,6 +58,10 @@ pub struct MaskScores {
     pub propagator_by_cause: ByCause,
     /// Whether ignore regions (`ignore.png` / `ignore.txt`) were applied.
     pub ignore_regions: bool,
+    /// Frames segmented because the propagator asked (early requests).
+    pub early_segments: usize,
+    /// People coming into view, and how soon they were masked.
+    pub entries: Entries,
     pub segmenter_ms_p50: f64,
     pub propagator_ms_p50: f64,
 }
@@ -100,6 +111,72 @@ impl ByCause {
         if !(entered || s.border_cut || small) {
             self.plain.add(s.iou);
         }
+    }
+}
+
+/// A person counts as masked at this IoU (entries).
+pub const MASKED_IOU: f64 = 0.5;
+
+/// Frames after coming into view within which a person is to be masked.
+pub const ENTRY_FRAMES: usize = 3;
+
+/// People coming into view: scored (>= `min_px`) on a frame after not
+/// being scored on the one before (walked in across the border, stepped
+/// out from behind furniture or another person, or grew past `min_px`).
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct Entries {
+    /// Appearances after the first frame.
+    pub count: usize,
+    /// Masked (IoU >= [`MASKED_IOU`]) by the [`ENTRY_FRAMES`]th frame after
+    /// coming into view (the frame itself is 0).
+    pub masked_in_time: usize,
+    /// Masked later while still in view.
+    pub masked_later: usize,
+    /// Frames from coming into view to being masked, over those masked.
+    pub delay_frames_p50: f64,
+    #[serde(skip)]
+    delays: Vec<f64>,
+    /// Person id -> frame it came into view, while not yet masked.
+    #[serde(skip)]
+    waiting: Vec<(u8, usize)>,
+    #[serde(skip)]
+    visible: Vec<u8>,
+}
+
+impl Entries {
+    /// The scores of frame `k`.
+    fn observe(&mut self, k: usize, scores: &[InstanceIou]) {
+        let now: Vec<u8> = scores.iter().map(|s| s.id).collect();
+        for s in scores {
+            if k > 0 && !self.visible.contains(&s.id) {
+                self.count += 1;
+                self.waiting.push((s.id, k));
+            }
+        }
+        // Out of view before being masked: not masked (neither count).
+        self.waiting.retain(|(id, _)| now.contains(id));
+        let mut masked = Vec::new();
+        for &(id, since) in &self.waiting {
+            if scores.iter().any(|s| s.id == id && s.iou >= MASKED_IOU) {
+                let delay = k - since;
+                if delay <= ENTRY_FRAMES {
+                    self.masked_in_time += 1;
+                } else {
+                    self.masked_later += 1;
+                }
+                self.delays.push(delay as f64);
+                masked.push(id);
+            }
+        }
+        self.waiting.retain(|(id, _)| !masked.contains(id));
+        self.visible = now;
+        self.delays.sort_by(f64::total_cmp);
+        self.delay_frames_p50 = pipeline::stats::percentile(&self.delays, 50.0);
+    }
+
+    /// Share of the entries masked in time.
+    pub fn in_time_share(&self) -> f64 {
+        self.masked_in_time as f64 / self.count.max(1) as f64
     }
 }
 
@@ -203,6 +280,14 @@ pub fn evaluate(
     let settings = YoloSettings::from_config(&config.services.segmenter)?;
     let mut segmenter = YoloSeg::load(init_runtime(&config.onnxruntime)?, settings)?;
     let mut propagator = LkPropagator::new(PropagatorParams::default());
+    if config.routing.early_segment_requests {
+        propagator = propagator.with_newcomer_check(NewcomerCheck::for_camera(&config.camera));
+    }
+    let mut entries = Entries::default();
+    let mut early_segments = 0;
+    // Frames since the last segmented one, and whether the propagator asked.
+    let (mut since_segment, mut requested) = (0usize, false);
+    let mut depth_buf = Vec::new();
 
     let mut seg_iou = Vec::new();
     let mut prop_iou = Vec::new();
@@ -231,18 +316,41 @@ pub fn evaluate(
             );
         }
         let mut labels = vec![0u8; w * h];
-        let offset = k % keyframe_every;
+        let scheduled = k == 0 || since_segment + 1 >= keyframe_every;
+        if requested && !scheduled {
+            early_segments += 1;
+        }
+        let offset = if scheduled || requested {
+            0
+        } else {
+            since_segment + 1
+        };
+        since_segment = offset;
+        requested = false;
+        let depth = match &frame.depth {
+            Some(path) => {
+                depth_buf.resize(w * h * 2, 0);
+                decode_depth_into(path, (w as u32, h as u32), &mut depth_buf)?;
+                Some(DepthImage {
+                    raw: &depth_buf,
+                    per_metre: config.source.depth_scale,
+                })
+            }
+            None => None,
+        };
         let t = std::time::Instant::now();
         if offset == 0 {
             let instances = segmenter.segment(rgb.as_raw(), w, h, &mut labels)?;
             seg_ms.push(t.elapsed().as_secs_f64() * 1e3);
             propagator.prompt_with(rgb.as_raw(), w, h, &labels, &instances);
         } else {
-            propagator.propagate(rgb.as_raw(), w, h, &mut labels);
+            propagator.propagate_rgbd(rgb.as_raw(), depth, w, h, &mut labels);
             prop_ms.push(t.elapsed().as_secs_f64() * 1e3);
+            requested = propagator.take_newcomer().is_some();
         }
         let ignored = ignore.at(frame.timestamp, w, h)?;
         let scores = instance_ious(&labels, gt.as_raw(), ignored.as_deref(), w, min_px);
+        entries.observe(k, &scores);
         if let Some(saved) = saved.as_mut() {
             saved.write(k, offset, w, h, &labels, &scores)?;
         }
@@ -292,6 +400,8 @@ pub fn evaluate(
         segmenter_by_cause: seg_cause,
         propagator_by_cause: prop_cause,
         ignore_regions: ignore.any(),
+        early_segments,
+        entries,
         segmenter_ms_p50: pipeline::stats::percentile(&seg_ms, 50.0),
         propagator_ms_p50: pipeline::stats::percentile(&prop_ms, 50.0),
     })

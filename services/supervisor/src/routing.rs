@@ -1,13 +1,15 @@
 //! The routing rule (DESIGN section 3): which worker makes a frame's masks.
 //!
 //! Lockstep: a frame goes to the segmenter when SLAM asked for a keyframe
-//! with its previous Track, when no segmenter masks exist yet, or when the
-//! newest segmenter run is older than `max_segment_age` frames; otherwise to
-//! the propagator. SLAM waits for a segmented frame's masks.
+//! with its previous Track, when the propagator asked for one (something
+//! moves that it does not follow: `early_segment_requests`), when no
+//! segmenter masks exist yet, or when the newest segmenter run is older than
+//! `max_segment_age` frames; otherwise to the propagator. SLAM waits for a
+//! segmented frame's masks.
 //!
 //! Real time: tracking never waits for the segmenter (the design of the
 //! CPU-real-time dynamic SLAMs such as NGD-SLAM). Every frame is masked by
-//! the propagator; when a segment is wanted (the same three reasons) and the
+//! the propagator; when a segment is wanted (the same four reasons) and the
 //! segmenter is idle, the frame is also segmented in the background
 //! (`SegmentBehind`): at most one frame is at the segmenter at a time, and its
 //! result re-prompts the propagator, which carries it forward to the frame of
@@ -27,6 +29,13 @@ pub struct Router {
     background: bool,
     /// SLAM's keyframe flag from the latest Track.
     next_needs_keyframe: bool,
+    /// The propagator asked for a segmenter run (until one is routed).
+    segment_wanted: bool,
+    /// Propagator requests taken, and those that made a frame's route.
+    requests: u64,
+    requests_routed: u64,
+    /// The last route decided was a segment for a propagator request only.
+    last_was_request: bool,
     /// Newest frame routed to the segmenter.
     last_segment: Option<u64>,
     /// Real time: the frame at the segmenter now, if any.
@@ -50,6 +59,10 @@ impl Router {
             policy,
             background: false,
             next_needs_keyframe: true,
+            segment_wanted: false,
+            requests: 0,
+            requests_routed: 0,
+            last_was_request: false,
             last_segment: None,
             segmenting: None,
             prompted: false,
@@ -73,6 +86,27 @@ impl Router {
     /// Takes SLAM's flag from a Track.
     pub fn on_track(&mut self, next_needs_keyframe: bool) {
         self.next_needs_keyframe = next_needs_keyframe;
+    }
+
+    /// The propagator asked for a segmenter run (its masks carried
+    /// `SEGMENT_WANTED`): the next frame that can be is segmented.
+    pub fn on_segment_wanted(&mut self) {
+        if self.policy.early_segment_requests {
+            self.requests += 1;
+            self.segment_wanted = true;
+        }
+    }
+
+    /// Propagator requests taken, and how many of them had a frame
+    /// segmented for them (others were met by a segment wanted anyway).
+    pub fn requests(&self) -> (u64, u64) {
+        (self.requests, self.requests_routed)
+    }
+
+    /// Whether the route just decided segments a frame only because the
+    /// propagator asked (for the frame's note).
+    pub fn last_was_request(&self) -> bool {
+        self.last_was_request
     }
 
     /// A segmenter result for frame `seq` was published: the segmenter is
@@ -106,16 +140,31 @@ impl Router {
     /// Decides the route of frame `seq` and remembers it; `None` (real time
     /// only): not yet, the first segmenter result is still on its way.
     pub fn route(&mut self, seq: u64, bad_input: bool, workers: Availability) -> Option<RouteKind> {
+        self.last_was_request = false;
         if bad_input || self.policy.no_masks {
             return Some(RouteKind::Skip);
         }
         let stale = self
             .last_segment
             .is_none_or(|last| seq.saturating_sub(last) > self.policy.max_segment_age);
-        let want_segment = self.policy.segment_every_frame || self.next_needs_keyframe || stale;
-        if self.background {
-            return self.route_behind(seq, want_segment, workers);
+        let wanted_anyway = self.policy.segment_every_frame || self.next_needs_keyframe || stale;
+        let want_segment = wanted_anyway || self.segment_wanted;
+        let route = if self.background {
+            self.route_behind(seq, want_segment, workers)
+        } else {
+            Some(self.route_lockstep(seq, want_segment, workers))
+        };
+        if route.is_some_and(|r| r.segments()) && self.segment_wanted {
+            self.segment_wanted = false;
+            if !wanted_anyway {
+                self.requests_routed += 1;
+                self.last_was_request = true;
+            }
         }
+        route
+    }
+
+    fn route_lockstep(&mut self, seq: u64, want_segment: bool, workers: Availability) -> RouteKind {
         let kind = if want_segment && workers.segmenter {
             RouteKind::Segment
         } else if workers.propagator && self.last_segment.is_some() {
@@ -128,7 +177,7 @@ impl Router {
         if kind == RouteKind::Segment {
             self.last_segment = Some(seq);
         }
-        Some(kind)
+        kind
     }
 
     fn route_behind(
@@ -221,6 +270,43 @@ mod tests {
                 RouteKind::Propagate
             ]
         );
+    }
+
+    #[test]
+    fn a_propagator_request_segments_the_next_frame_once() {
+        let mut r = router();
+        assert_eq!(r.route_now(0, false, BOTH), RouteKind::Segment);
+        r.on_track(false);
+        assert_eq!(r.route_now(1, false, BOTH), RouteKind::Propagate);
+        r.on_segment_wanted();
+        assert_eq!(r.route_now(2, false, BOTH), RouteKind::Segment);
+        assert!(r.last_was_request());
+        assert_eq!(r.route_now(3, false, BOTH), RouteKind::Propagate);
+        assert!(!r.last_was_request());
+        // A request met by a keyframe anyway does not count as routed.
+        r.on_segment_wanted();
+        r.on_track(true);
+        assert_eq!(r.route_now(4, false, BOTH), RouteKind::Segment);
+        assert_eq!(r.requests(), (2, 1));
+        // Real time: honoured when the segmenter is free, behind the
+        // propagator's masks.
+        let mut r = Router::realtime(RoutingConfig::default());
+        assert_eq!(r.route(0, false, BOTH), Some(RouteKind::Segment));
+        r.on_segmenter_result(0);
+        r.on_track(false);
+        assert_eq!(r.route(1, false, BOTH), Some(RouteKind::Propagate));
+        r.on_segment_wanted();
+        assert_eq!(r.route(2, false, BOTH), Some(RouteKind::SegmentBehind));
+        // Switched off: requests are ignored.
+        let mut r = Router::new(RoutingConfig {
+            early_segment_requests: false,
+            ..Default::default()
+        });
+        assert_eq!(r.route_now(0, false, BOTH), RouteKind::Segment);
+        r.on_track(false);
+        r.on_segment_wanted();
+        assert_eq!(r.route_now(1, false, BOTH), RouteKind::Propagate);
+        assert_eq!(r.requests(), (0, 0));
     }
 
     #[test]

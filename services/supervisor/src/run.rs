@@ -506,6 +506,11 @@ impl Supervisor {
             if kind == RouteKind::Skip && !p.bad && !no_masks {
                 p.note = "unmasked: no mask service available".into();
             }
+            if self.router.last_was_request() {
+                p.note =
+                    "segmented early: the propagator saw something move that it does not follow"
+                        .into();
+            }
             let stamps = p.stamps;
             send_route(routes, seq, kind, stamps, false)?;
             if kind != RouteKind::Skip {
@@ -899,6 +904,12 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
             return Err(fail_run(&mut sup, &names, e));
         }
     };
+    let (requests, routed) = sup.router.requests();
+    if requests > 0 {
+        tracing::info!(
+            "early segmenter requests from the propagator: {requests} ({routed} had a frame segmented for them; the rest came with a keyframe anyway)"
+        );
+    }
     let degraded = sup.degraded();
     let (state, error) = if let Some(fatal) = &sup.fatal {
         ("failed", Some(fatal.clone()))
@@ -1052,6 +1063,14 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
                 Ok(view) => {
                     if view.source() == MaskSource::Segmenter {
                         sup.router.on_segmenter_result(view.header.seq);
+                    }
+                    // Lockstep stays deterministic: the masks of frame N were
+                    // published before SLAM's Track N, which frame N+1's
+                    // route waits for.
+                    if view.source() == MaskSource::Propagator
+                        && view.header.has(mask_flags::SEGMENT_WANTED)
+                    {
+                        sup.router.on_segment_wanted();
                     }
                     if let Some(p) = sup.pending.get_mut(&view.header.seq) {
                         p.masks_seen = true;

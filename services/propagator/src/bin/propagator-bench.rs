@@ -6,6 +6,9 @@
 //! `--sam2-decoder` the `sam2` backend runs on the same frames in the same
 //! run (its ms and the ratio to `lk`; on the tiny test graphs that is our
 //! pre-/post-processing and ONNX Runtime's overhead, not SAM 2's speed).
+//! The newcomer check (early segmenter requests) is timed on its own over
+//! consecutive real frames of the dataset with their depth, with the
+//! requests it made (the shared sequence is static: each is a false one).
 //!
 //! `propagator-bench [--frames N] [--dataset DIR] [--out FILE] [--sam2-encoder F --sam2-decoder F]`
 
@@ -13,11 +16,14 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
+use camera_reader::decode::decode_depth_into;
 use camera_reader::source::tum_folder;
 use clap::Parser;
-use pipeline::config::{OnnxRuntimeConfig, ServiceConfig};
+use pipeline::config::{CameraConfig, OnnxRuntimeConfig, ServiceConfig};
 use pipeline::stats::percentile;
+use propagator::newcomers::{DepthImage, NewcomerCheck};
 use propagator::propagate::{LkPropagator, PropagatorParams};
+use propagator::pyramid::{Gray, Pyramid};
 use propagator::sam2::{Sam2Propagator, Sam2Settings};
 use propagator::synthetic::{iou, render};
 use shared_types::Instance;
@@ -68,10 +74,8 @@ fn sam2(encoder: &std::path::Path, decoder: &std::path::Path) -> Result<Sam2Prop
 
 fn main() -> Result<()> {
     let args = Args::parse();
-    let files: Vec<PathBuf> = tum_folder(&args.dataset, 0.02)?
-        .into_iter()
-        .map(|f| f.rgb)
-        .collect();
+    let entries = tum_folder(&args.dataset, 0.02)?;
+    let files: Vec<PathBuf> = entries.iter().map(|f| f.rgb.clone()).collect();
     let load = |i: usize| -> Result<image::RgbImage> {
         let f = &files[i % files.len()];
         Ok(image::open(f)
@@ -162,6 +166,18 @@ fn main() -> Result<()> {
         );
         sam_json = format!(",\n  \"sam2_p50_ms\": {s50:.3},\n  \"sam2_p99_ms\": {s99:.3}");
     }
+    let (check_ms, requests) = time_newcomer_check(&entries, args.frames)?;
+    let (c50, c99) = (percentile(&check_ms, 50.0), percentile(&check_ms, 99.0));
+    println!(
+        "{:<12} {:>9.2} {:>9.2}   (newcomer check alone, {} real frame pairs, {requests} requests)",
+        "newcomers",
+        c50,
+        c99,
+        check_ms.len()
+    );
+    sam_json.push_str(&format!(
+        ",\n  \"newcomer_check_p50_ms\": {c50:.3},\n  \"newcomer_check_p99_ms\": {c99:.3},\n  \"newcomer_requests\": {requests}"
+    ));
     if let Some(dir) = args.out.parent() {
         std::fs::create_dir_all(dir)?;
     }
@@ -171,4 +187,42 @@ fn main() -> Result<()> {
     )?;
     println!("wrote {}", args.out.display());
     Ok(())
+}
+
+/// Milliseconds of the newcomer check per pair of consecutive frames (up to
+/// `frames` pairs, nothing followed), and the requests it made.
+fn time_newcomer_check(
+    entries: &[camera_reader::source::FrameEntry],
+    frames: usize,
+) -> Result<(Vec<f64>, u64)> {
+    let mut check = NewcomerCheck::for_camera(&CameraConfig::default());
+    let lk = PropagatorParams::default();
+    let mut prev: Option<Pyramid> = None;
+    let mut depth = Vec::new();
+    let mut ms = Vec::new();
+    for entry in entries.iter().take(frames + 1) {
+        let Some(depth_path) = &entry.depth else {
+            anyhow::bail!("{}: the newcomer check needs depth", entry.rgb.display());
+        };
+        let rgb = image::open(&entry.rgb)
+            .with_context(|| entry.rgb.display().to_string())?
+            .to_rgb8();
+        let (w, h) = (rgb.width() as usize, rgb.height() as usize);
+        depth.resize(w * h * 2, 0);
+        decode_depth_into(depth_path, (w as u32, h as u32), &mut depth)?;
+        let cur = Pyramid::new(Gray::from_rgb(rgb.as_raw(), w, h), lk.pyramid_levels);
+        if let Some(prev) = &prev {
+            let covered = vec![false; w * h];
+            let depth = DepthImage {
+                raw: &depth,
+                per_metre: 5000.0,
+            };
+            let t = Instant::now();
+            check.check(prev, &cur, &covered, depth, lk.lk);
+            ms.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+        prev = Some(cur);
+    }
+    ms.sort_by(f64::total_cmp);
+    Ok((ms, check.requests()))
 }

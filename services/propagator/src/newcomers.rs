@@ -1,0 +1,672 @@
+//! Early segmenter requests: something moves in the background that no
+//! followed object covers (a person who walked in after the keyframe).
+//!
+//! The propagator follows only the objects it was prompted with; a person
+//! who enters between keyframes stays unmasked until the next segmenter run.
+//! This check notices such a region so that the supervisor can route the
+//! next frame to the segmenter at once instead of waiting for
+//! `max_segment_age`.
+//!
+//! The most trackable point of each cell of a coarse grid outside the
+//! followed objects is tracked from the previous frame with the
+//! propagator's LK (at half resolution).
+//! With the depth of the new frame, the camera's instantaneous motion (the
+//! Longuet-Higgins and Prazdny flow field: 3 translation and 3 rotation
+//! parameters, linear in them given inverse depth: [`Motion`]) explains the
+//! flow of the static scene, parallax included; it is found by the one
+//! RANSAC driver of the SLAM core. Grid cells whose points move more than
+//! `min_residual_px` unlike that motion are movers; a connected group of at
+//! least `min_cells` of them that moves alike, found in two frames in a row,
+//! is a newcomer. The pixel size of a cell and the group size make
+//! the smallest region that asks (24x24 px cells, 3 of them: 1728 px, under
+//! the 2000 px from which `masks-eval` scores a person). About 8 ms a
+//! 640x480 frame on one core of the 2-core machine.
+
+use nalgebra::{SMatrix, SVector};
+use pipeline::config::CameraConfig;
+use slam_core::geometry::ransac::Ransac;
+use slam_core::Camera;
+
+use crate::lk::{track, LkParams};
+use crate::pyramid::{Gray, Pyramid};
+
+#[derive(Debug, Clone, Copy)]
+pub struct NewcomerParams {
+    /// Spacing of the background grid (pixels).
+    pub cell_px: usize,
+    /// A point the camera's motion explains within this is static scene
+    /// (pixels; RANSAC's inlier distance).
+    pub inlier_px: f64,
+    /// The share of the tracked points the camera's motion must explain
+    /// for the frame to be judged (a blurred background tracks badly).
+    pub min_agreement: f64,
+    /// A point off the camera's motion by more than this, and by more than
+    /// `relative_residual` of the image motion the camera gives it, moves
+    /// on its own (fast turns blur, and small model errors grow with the
+    /// motion).
+    pub min_residual_px: f64,
+    pub relative_residual: f64,
+    /// A cell's point is tracked only where LK's window has this much
+    /// texture in both directions (smallest structure-tensor eigenvalue
+    /// per pixel, grey levels squared, at the tracking resolution).
+    pub min_corner_score: f32,
+    /// Connected mover cells that make a newcomer...
+    pub min_cells: usize,
+    /// ... when they move alike: the length of their mean residual over
+    /// their mean residual length (1: all one way; mistracked points on
+    /// blur and depth edges scatter).
+    pub min_coherence: f64,
+    /// After a request, frames in which no other is made (a mover no class
+    /// list names would otherwise ask on every frame).
+    pub cooldown_frames: u32,
+}
+
+impl Default for NewcomerParams {
+    fn default() -> Self {
+        Self {
+            cell_px: 24,
+            inlier_px: 2.5,
+            min_agreement: 0.4,
+            min_residual_px: 6.0,
+            relative_residual: 0.25,
+            min_cells: 3,
+            min_corner_score: 60.0,
+            min_coherence: 0.7,
+            cooldown_frames: 5,
+        }
+    }
+}
+
+/// Depth of a frame: native-endian u16 values, `per_metre` units a metre.
+#[derive(Debug, Clone, Copy)]
+pub struct DepthImage<'a> {
+    pub raw: &'a [u8],
+    pub per_metre: f32,
+}
+
+impl DepthImage<'_> {
+    /// Inverse depth (1/m) at a pixel, None where there is no measurement.
+    fn inverse_at(&self, x: usize, y: usize, width: usize) -> Option<f64> {
+        let i = (y * width + x) * 2;
+        let raw = u16::from_ne_bytes([*self.raw.get(i)?, *self.raw.get(i + 1)?]);
+        (raw > 0 && self.per_metre > 0.0).then(|| self.per_metre as f64 / raw as f64)
+    }
+}
+
+/// A region that asked for a segmenter run.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Newcomer {
+    /// Mover cells in the group.
+    pub cells: usize,
+    /// Bounding box of the group in the new frame: x0, y0, x1, y1 (pixels).
+    pub bbox: [usize; 4],
+}
+
+impl Newcomer {
+    /// Whether the two boxes overlap once grown by `margin` pixels.
+    fn near(&self, other: &Newcomer, margin: usize) -> bool {
+        let ([ax0, ay0, ax1, ay1], [bx0, by0, bx1, by1]) = (self.bbox, other.bbox);
+        ax0 < bx1 + margin && bx0 < ax1 + margin && ay0 < by1 + margin && by0 < ay1 + margin
+    }
+}
+
+/// The check, with what it carries from frame to frame.
+#[derive(Debug, Clone)]
+pub struct NewcomerCheck {
+    params: NewcomerParams,
+    camera: Camera,
+    /// The background's median image motion in the last frame: the starting
+    /// guess for tracking into the next (fast camera turns).
+    flow_guess: (f32, f32),
+    /// Frames to go before another request may be made.
+    cooldown: u32,
+    /// The group found in the previous frame: a newcomer is a group found
+    /// in two frames in a row at about the same place (a flicker of
+    /// mistracked points is not).
+    last: Option<Newcomer>,
+    requests: u64,
+}
+
+/// One background point tracked into the new frame.
+struct Flow {
+    cell: (usize, usize),
+    /// Ideal (undistorted) normalised coordinates in the previous frame.
+    x: f64,
+    y: f64,
+    /// Its image motion in normalised coordinates.
+    du: f64,
+    dv: f64,
+    inverse_depth: f64,
+}
+
+/// Camera motion: translation (in units of the inverse depth's metres) and
+/// rotation (radians), in the small-motion flow field of Longuet-Higgins
+/// and Prazdny. Its second-order error (a fraction of a pixel at TUM's
+/// fastest turns of about 0.05 rad a frame) is under the residual limits.
+/// An exact model (`M x + rho t` by the direct linear transform) was tried:
+/// it has a trivial solution on scenes of one depth and did not remove the
+/// false requests on the shared sequence either.
+type Motion = SVector<f64, 6>;
+
+impl Flow {
+    /// The two rows of the flow equation `(du, dv) = J * motion`.
+    fn rows(&self) -> [([f64; 6], f64); 2] {
+        let (x, y, r) = (self.x, self.y, self.inverse_depth);
+        [
+            ([-r, 0.0, r * x, x * y, -(1.0 + x * x), y], self.du),
+            ([0.0, -r, r * y, 1.0 + y * y, -x * y, -x], self.dv),
+        ]
+    }
+
+    /// The image motion `motion` gives the point (normalised coordinates).
+    fn predicted(&self, motion: &Motion) -> (f64, f64) {
+        let [(ju, _), (jv, _)] = self.rows();
+        let dot = |j: [f64; 6]| j.iter().zip(motion.iter()).map(|(a, b)| a * b).sum::<f64>();
+        (dot(ju), dot(jv))
+    }
+
+    /// How the point moved unlike `motion` (pixels).
+    fn residual(&self, motion: &Motion, camera: &Camera) -> (f64, f64) {
+        let (pu, pv) = self.predicted(motion);
+        ((self.du - pu) * camera.fx, (self.dv - pv) * camera.fy)
+    }
+
+    /// How far (pixels) the point moved unlike `motion`.
+    fn residual_px(&self, motion: &Motion, camera: &Camera) -> f64 {
+        let (ru, rv) = self.residual(motion, camera);
+        (ru * ru + rv * rv).sqrt()
+    }
+
+    /// How far (pixels) `motion` moves the point.
+    fn predicted_px(&self, motion: &Motion, camera: &Camera) -> f64 {
+        let (pu, pv) = self.predicted(motion);
+        ((pu * camera.fx).powi(2) + (pv * camera.fy).powi(2)).sqrt()
+    }
+}
+
+/// Least-squares camera motion for the flows at `indices` (None when they
+/// do not fix it: too few, or all on a line at one depth).
+fn fit_motion(flows: &[Flow], indices: &[usize]) -> Option<Motion> {
+    let mut ata = SMatrix::<f64, 6, 6>::zeros();
+    let mut atb = Motion::zeros();
+    for &i in indices {
+        for (row, b) in flows[i].rows() {
+            let j = SVector::<f64, 6>::from(row);
+            ata += j * j.transpose();
+            atb += j * b;
+        }
+    }
+    let solution = ata.cholesky()?.solve(&atb);
+    solution.iter().all(|v| v.is_finite()).then_some(solution)
+}
+
+impl NewcomerCheck {
+    pub fn new(camera: Camera, params: NewcomerParams) -> Self {
+        Self {
+            params,
+            camera,
+            flow_guess: (0.0, 0.0),
+            cooldown: 0,
+            last: None,
+            requests: 0,
+        }
+    }
+
+    /// The check with the default parameters for the configured camera
+    /// (depth units come with each frame; only the intrinsics and the
+    /// distortion are used).
+    pub fn for_camera(c: &CameraConfig) -> Self {
+        let camera = Camera::new([c.fx, c.fy, c.cx, c.cy], c.distortion, 1.0, 0.0);
+        Self::new(camera, NewcomerParams::default())
+    }
+
+    /// Requests made so far.
+    pub fn requests(&self) -> u64 {
+        self.requests
+    }
+
+    /// Looks for a newcomer between `prev` and `cur`: `covered_prev` marks
+    /// the previous frame's pixels that followed objects cover (they are
+    /// left out, with a cell of margin), `depth` is the new frame's. Some
+    /// when a segmenter run is to be asked for now.
+    pub fn check(
+        &mut self,
+        prev: &Pyramid,
+        cur: &Pyramid,
+        covered_prev: &[bool],
+        depth: DepthImage,
+        lk: LkParams,
+    ) -> Option<Newcomer> {
+        self.cooldown = self.cooldown.saturating_sub(1);
+        let found = self.find(prev, cur, covered_prev, depth, lk);
+        let before = std::mem::replace(&mut self.last, found);
+        let margin = self.params.cell_px;
+        let found = found.filter(|f| before.is_some_and(|b| f.near(&b, margin)))?;
+        if self.cooldown > 0 {
+            return None;
+        }
+        self.cooldown = self.params.cooldown_frames;
+        self.requests += 1;
+        Some(found)
+    }
+
+    fn find(
+        &mut self,
+        prev: &Pyramid,
+        cur: &Pyramid,
+        covered_prev: &[bool],
+        depth: DepthImage,
+        lk: LkParams,
+    ) -> Option<Newcomer> {
+        let base = prev.levels.first()?;
+        let (width, height) = (base.width, base.height);
+        if cur.levels.first().map(|g| (g.width, g.height)) != Some((width, height))
+            || covered_prev.len() != width * height
+            || depth.raw.len() < width * height * 2
+        {
+            return None;
+        }
+        let step = self.params.cell_px.max(4);
+        let (cols, rows) = (width / step, height / step);
+        // A cell's point is left out when an object covers it or the pixel
+        // a cell away in any of the four directions (objects move; their
+        // borders blur).
+        let covered = |x: usize, y: usize| {
+            let m = step as isize;
+            [(0, 0), (-m, 0), (m, 0), (0, -m), (0, m)]
+                .iter()
+                .any(|&(dx, dy)| {
+                    let (px, py) = (x as isize + dx, y as isize + dy);
+                    px >= 0
+                        && py >= 0
+                        && (px as usize) < width
+                        && (py as usize) < height
+                        && covered_prev[py as usize * width + px as usize]
+                })
+        };
+        // Half resolution is precise enough for residuals of several
+        // pixels, and a flat or occluded point gives up sooner.
+        let lk = LkParams {
+            finest_level: 1.min(prev.levels.len() - 1),
+            iterations: lk.iterations.min(6),
+            ..lk
+        };
+        let level = &prev.levels[lk.finest_level];
+        let scale = 1 << lk.finest_level;
+        let min_score = self.params.min_corner_score;
+        let mut cells = Vec::new();
+        let mut points = Vec::new();
+        for gy in 0..rows {
+            for gx in 0..cols {
+                let cell = (gx * step, gy * step, step);
+                if let Some((x, y)) = corner_in_cell(level, scale, cell, lk.radius, min_score) {
+                    if !covered(x, y) {
+                        cells.push((gx, gy));
+                        points.push((x as f32, y as f32));
+                    }
+                }
+            }
+        }
+        let guess = self.flow_guess;
+        // No forward-backward check (it would double the cost): a point
+        // LK gets wrong is one outlier, and a newcomer takes a group.
+        let fwd = track(prev, cur, &points, guess, lk);
+        let mut flows = Vec::new();
+        for (i, there) in fwd.into_iter().enumerate() {
+            let Some((tx, ty)) = there else {
+                continue;
+            };
+            let (sx, sy) = points[i];
+            let (ix, iy) = (tx.round() as usize, ty.round() as usize);
+            if ix >= width || iy >= height {
+                continue;
+            }
+            let Some(inverse_depth) = depth.inverse_at(ix, iy, width) else {
+                continue;
+            };
+            let c = &self.camera;
+            let (u0, v0) = c.undistort(sx as f64, sy as f64);
+            let (u1, v1) = c.undistort(tx as f64, ty as f64);
+            let (x, y) = ((u0 - c.cx) / c.fx, (v0 - c.cy) / c.fy);
+            flows.push(Flow {
+                cell: cells[i],
+                x,
+                y,
+                du: (u1 - u0) / c.fx,
+                dv: (v1 - v0) / c.fy,
+                inverse_depth,
+            });
+        }
+        if let Some(median) = median_flow(&flows, &self.camera) {
+            self.flow_guess = median;
+        }
+        // Too little background to say what the camera did.
+        if flows.len() < 24 {
+            return None;
+        }
+        let camera = self.camera;
+        let inlier = self.params.inlier_px;
+        let search = Ransac {
+            sample: 3,
+            iterations: 60,
+            seed: 0x6e65_7763_6f6d_6572,
+        };
+        let (_, inliers) = search.run(
+            flows.len(),
+            |s| fit_motion(&flows, s),
+            |m, i| flows[i].residual_px(m, &camera) <= inlier,
+        )?;
+        // Enough of the points must agree on a motion, else this frame says
+        // nothing (motion blur, a view filled by movers).
+        if (inliers.len() as f64) < self.params.min_agreement * flows.len() as f64 {
+            return None;
+        }
+        let motion = fit_motion(&flows, &inliers)?;
+        let mut mover = vec![false; cols * rows];
+        let mut residual = vec![(0.0, 0.0); cols * rows];
+        for f in &flows {
+            let limit = self
+                .params
+                .min_residual_px
+                .max(self.params.relative_residual * f.predicted_px(&motion, &camera));
+            if f.residual_px(&motion, &camera) > limit {
+                mover[f.cell.1 * cols + f.cell.0] = true;
+                residual[f.cell.1 * cols + f.cell.0] = f.residual(&motion, &camera);
+            }
+        }
+        let coherence = |group: &[(usize, usize)]| {
+            let (mut sx, mut sy, mut length) = (0.0, 0.0, 0.0);
+            for &(gx, gy) in group {
+                let (rx, ry) = residual[gy * cols + gx];
+                sx += rx;
+                sy += ry;
+                length += (rx * rx + ry * ry).sqrt();
+            }
+            (sx * sx + sy * sy).sqrt() / length.max(1e-9)
+        };
+        largest_group(&mover, cols, rows)
+            .filter(|g| {
+                g.len() >= self.params.min_cells && coherence(g) >= self.params.min_coherence
+            })
+            .map(|group| {
+                let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
+                for &(gx, gy) in &group {
+                    x0 = x0.min(gx * step);
+                    y0 = y0.min(gy * step);
+                    x1 = x1.max((gx + 1) * step);
+                    y1 = y1.max((gy + 1) * step);
+                }
+                Newcomer {
+                    cells: group.len(),
+                    bbox: [x0, y0, x1, y1],
+                }
+            })
+    }
+}
+
+/// The most trackable point of a cell (`x0, y0`, `step` pixels square, at
+/// full resolution) where LK tracks it: the Shi-Tomasi score (smallest
+/// eigenvalue of the structure tensor, per pixel) on `g`, a pyramid level
+/// `scale` times smaller, over LK's window of half size `radius`, at
+/// candidates 2 level pixels apart. None when no candidate reaches
+/// `min_score`: on a flat wall LK fails, and along a (blurred) edge it
+/// slides, which reads as motion of its own.
+fn corner_in_cell(
+    g: &Gray,
+    scale: usize,
+    (x0, y0, step): (usize, usize, usize),
+    radius: usize,
+    min_score: f32,
+) -> Option<(usize, usize)> {
+    let r = radius as isize;
+    let n = ((2 * r + 1) * (2 * r + 1)) as f32;
+    let mut best: Option<(f32, (usize, usize))> = None;
+    let (lx0, ly0, lstep) = (x0 / scale, y0 / scale, (step / scale).max(1));
+    for cy in (ly0 + 1..ly0 + lstep).step_by(2) {
+        for cx in (lx0 + 1..lx0 + lstep).step_by(2) {
+            if cx <= radius
+                || cy <= radius
+                || cx + radius + 1 >= g.width
+                || cy + radius + 1 >= g.height
+            {
+                continue;
+            }
+            let (mut xx, mut xy, mut yy) = (0.0f32, 0.0f32, 0.0f32);
+            for dy in -r..=r {
+                let y = (cy as isize + dy) as usize;
+                for dx in -r..=r {
+                    let x = (cx as isize + dx) as usize;
+                    let ix = 0.5 * (g.at(x + 1, y) - g.at(x - 1, y));
+                    let iy = 0.5 * (g.at(x, y + 1) - g.at(x, y - 1));
+                    xx += ix * ix;
+                    xy += ix * iy;
+                    yy += iy * iy;
+                }
+            }
+            let (xx, xy, yy) = (xx / n, xy / n, yy / n);
+            let min_eigen = 0.5 * (xx + yy - ((xx - yy).powi(2) + 4.0 * xy * xy).sqrt());
+            if best.is_none_or(|b| min_eigen > b.0) {
+                best = Some((min_eigen, (cx * scale, cy * scale)));
+            }
+        }
+    }
+    best.filter(|b| b.0 >= min_score).map(|b| b.1)
+}
+
+/// The median image motion of the flows in pixels (of the distorted image
+/// near enough for a tracking guess).
+fn median_flow(flows: &[Flow], camera: &Camera) -> Option<(f32, f32)> {
+    if flows.is_empty() {
+        return None;
+    }
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let du = median(flows.iter().map(|f| f.du * camera.fx).collect());
+    let dv = median(flows.iter().map(|f| f.dv * camera.fy).collect());
+    Some((du as f32, dv as f32))
+}
+
+/// The largest 8-connected group of set cells.
+fn largest_group(set: &[bool], cols: usize, rows: usize) -> Option<Vec<(usize, usize)>> {
+    let mut seen = vec![false; set.len()];
+    let mut best: Option<Vec<(usize, usize)>> = None;
+    for start in 0..set.len() {
+        if !set[start] || seen[start] {
+            continue;
+        }
+        seen[start] = true;
+        let mut group = Vec::new();
+        let mut stack = vec![(start % cols, start / cols)];
+        while let Some((x, y)) = stack.pop() {
+            group.push((x, y));
+            for dy in -1isize..=1 {
+                for dx in -1isize..=1 {
+                    let (nx, ny) = (x as isize + dx, y as isize + dy);
+                    if nx < 0 || ny < 0 || nx as usize >= cols || ny as usize >= rows {
+                        continue;
+                    }
+                    let n = ny as usize * cols + nx as usize;
+                    if set[n] && !seen[n] {
+                        seen[n] = true;
+                        stack.push((nx as usize, ny as usize));
+                    }
+                }
+            }
+        }
+        if best.as_ref().is_none_or(|b| group.len() > b.len()) {
+            best = Some(group);
+        }
+    }
+    best
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const W: usize = 320;
+    const H: usize = 240;
+
+    /// A textured grey value (smooth enough for LK, varied enough to lock).
+    fn texture(x: f32, y: f32) -> f32 {
+        128.0
+            + 50.0 * (x * 0.21).sin() * (y * 0.17).cos()
+            + 40.0 * ((x + 2.0 * y) * 0.07).sin()
+            + 25.0 * ((3.0 * x - y) * 0.05).cos()
+    }
+
+    fn pyramid(f: impl Fn(f32, f32) -> f32) -> Pyramid {
+        let mut data = Vec::with_capacity(W * H);
+        for y in 0..H {
+            for x in 0..W {
+                data.push(f(x as f32, y as f32));
+            }
+        }
+        Pyramid::new(
+            Gray {
+                width: W,
+                height: H,
+                data,
+            },
+            4,
+        )
+    }
+
+    fn flat_depth(metres: f32) -> Vec<u8> {
+        let raw = (metres * 5000.0) as u16;
+        (0..W * H).flat_map(|_| raw.to_ne_bytes()).collect()
+    }
+
+    fn camera() -> Camera {
+        Camera::new([260.0, 260.0, 160.0, 120.0], [0.0; 5], 5000.0, 0.0)
+    }
+
+    /// The camera pans (the whole scene shifts 3 px) while a patch of it,
+    /// 64x64 px, moves 10 px down on its own.
+    fn pan_with_patch(patch: bool) -> (Pyramid, Pyramid) {
+        let inside = |x: f32, y: f32| (200.0..264.0).contains(&x) && (80.0..144.0).contains(&y);
+        let prev = pyramid(|x, y| {
+            if patch && inside(x, y) {
+                texture(x * 1.3 + 50.0, y * 1.3)
+            } else {
+                texture(x, y)
+            }
+        });
+        let cur = pyramid(|x, y| {
+            let (sx, sy) = (x + 3.0, y);
+            if patch && inside(sx, sy - 10.0) {
+                texture(sx * 1.3 + 50.0, (sy - 10.0) * 1.3)
+            } else {
+                texture(sx, sy)
+            }
+        });
+        (prev, cur)
+    }
+
+    #[test]
+    fn a_region_moving_unlike_the_camera_asks_once_per_cooldown() {
+        let (prev, cur) = pan_with_patch(true);
+        let depth = flat_depth(2.0);
+        let depth = DepthImage {
+            raw: &depth,
+            per_metre: 5000.0,
+        };
+        let mut check = NewcomerCheck::new(camera(), NewcomerParams::default());
+        let none = vec![false; W * H];
+        // Found in a first frame, asked for when found again in the next.
+        assert!(check
+            .check(&prev, &cur, &none, depth, LkParams::default())
+            .is_none());
+        let found = check
+            .check(&prev, &cur, &none, depth, LkParams::default())
+            .expect("the patch moves unlike the pan");
+        // The patch is at x 197..261, y 90..154 in the new frame.
+        let [x0, y0, x1, y1] = found.bbox;
+        assert!(x0 >= 176 && x1 <= 288 && y0 >= 64 && y1 <= 176, "{found:?}");
+        assert!(found.cells >= 5, "{found:?}");
+        // The same again within the cooldown: no second request.
+        for _ in 1..NewcomerParams::default().cooldown_frames {
+            assert!(check
+                .check(&prev, &cur, &none, depth, LkParams::default())
+                .is_none());
+        }
+        assert!(check
+            .check(&prev, &cur, &none, depth, LkParams::default())
+            .is_some());
+        assert_eq!(check.requests(), 2);
+    }
+
+    #[test]
+    fn a_pan_alone_or_a_covered_mover_asks_nothing() {
+        let depth = flat_depth(2.0);
+        let depth = DepthImage {
+            raw: &depth,
+            per_metre: 5000.0,
+        };
+        let (prev, cur) = pan_with_patch(false);
+        let none = vec![false; W * H];
+        let mut check = NewcomerCheck::new(camera(), NewcomerParams::default());
+        assert_eq!(
+            check.check(&prev, &cur, &none, depth, LkParams::default()),
+            None
+        );
+        // The mover is an object the propagator already follows.
+        let (prev, cur) = pan_with_patch(true);
+        let covered: Vec<bool> = (0..W * H)
+            .map(|i| {
+                let (x, y) = (i % W, i / W);
+                (196..268).contains(&x) && (76..150).contains(&y)
+            })
+            .collect();
+        assert_eq!(
+            check.check(&prev, &cur, &covered, depth, LkParams::default()),
+            None
+        );
+        assert_eq!(check.requests(), 0);
+    }
+
+    #[test]
+    fn parallax_of_a_translating_camera_is_not_a_mover() {
+        // Sideways translation over two depths: the near half of the view
+        // (1 m) shifts 4 px, the far half (2 m) 2 px, as the flow field
+        // of the translation says; nothing moves on its own.
+        let (f, t) = (260.0f32, 4.0 / 260.0);
+        let near = |x: f32| x < 160.0;
+        let prev = pyramid(texture);
+        let cur = pyramid(|x, y| {
+            let shift = if near(x) { f * t / 1.0 } else { f * t / 2.0 };
+            texture(x + shift, y)
+        });
+        let depth: Vec<u8> = (0..W * H)
+            .flat_map(|i| {
+                let m = if near((i % W) as f32) { 1.0 } else { 2.0 };
+                ((m * 5000.0) as u16).to_ne_bytes()
+            })
+            .collect();
+        let depth = DepthImage {
+            raw: &depth,
+            per_metre: 5000.0,
+        };
+        let mut check = NewcomerCheck::new(camera(), NewcomerParams::default());
+        let none = vec![false; W * H];
+        assert_eq!(
+            check.check(&prev, &cur, &none, depth, LkParams::default()),
+            None
+        );
+    }
+
+    #[test]
+    fn the_largest_group_is_eight_connected() {
+        #[rustfmt::skip]
+        let set = [
+            true,  false, false, false,
+            false, true,  false, true,
+            false, false, true,  false,
+        ];
+        let g = largest_group(&set, 4, 3).unwrap();
+        assert_eq!(g.len(), 4);
+        assert!(largest_group(&[false; 4], 2, 2).is_none());
+    }
+}

@@ -39,6 +39,7 @@ fn synthesised_sequence_has_exact_ground_truth() {
     let frames = record["frames"].as_array().unwrap();
     assert_eq!(frames.len(), 60);
     let (mut person_px, mut frames_with_people) = (0usize, 0usize);
+    let mut hidden_px = 0u64;
     for (i, f) in frames.iter().enumerate() {
         // Output files keep the input's names (rgb/<stamp>.png, depth/<stamp>.png).
         let rgb_in = image::open(shared_tum().join(f["rgb"].as_str().unwrap()))
@@ -111,6 +112,17 @@ fn synthesised_sequence_has_exact_ground_truth() {
             listed as usize, here,
             "frame {i}: objects.json pixel counts"
         );
+        // The unhidden silhouette holds at least what is visible of it.
+        for o in f["objects"].as_array().unwrap() {
+            let full = o["unoccluded_px"].as_u64().unwrap();
+            assert!(full >= o["visible_px"].as_u64().unwrap(), "frame {i}: {o}");
+        }
+        hidden_px += f["objects"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|o| o["unoccluded_px"].as_u64().unwrap() - o["visible_px"].as_u64().unwrap())
+            .sum::<u64>();
         person_px += here;
         frames_with_people += (here > 0) as usize;
     }
@@ -119,6 +131,8 @@ fn synthesised_sequence_has_exact_ground_truth() {
         "people seen in {frames_with_people} of 60 frames"
     );
     assert!(person_px > 100_000);
+    // The scene hides parts of people walking through it (scene occlusion).
+    assert!(hidden_px > 0, "nothing of the people was hidden");
 
     // The same seed gives the same scene, another seed another one.
     let again = dir.join("again");
@@ -237,7 +251,7 @@ fn masks_on_people_passing_in_front_of_the_tum_scene_meet_the_targets() {
     // By cause: every scored person-frame is in one cause or `plain`; only
     // propagated frames have people who entered since their keyframe.
     let samples = |side: &str, cause: &str| scores[side][cause]["samples"].as_u64().unwrap();
-    let seg: u64 = ["border_cut", "small", "plain"]
+    let seg: u64 = ["border_cut", "small", "occluded", "plain"]
         .iter()
         .map(|c| samples("segmenter_by_cause", c))
         .sum();

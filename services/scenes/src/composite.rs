@@ -49,6 +49,17 @@ pub struct Placement {
     pub depth_m: f64,
 }
 
+/// What one placement left in a frame.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Drawn {
+    /// Pixels of the person in the image.
+    pub visible_px: usize,
+    /// Pixels it would have inside the image were nothing in front of it
+    /// (neither the scene nor a nearer person): the full silhouette cut
+    /// only by the image border.
+    pub unoccluded_px: usize,
+}
+
 /// Where a person of `height_m` with centre `centre` (world) appears to a
 /// camera at `pose` (world from camera); `None` when behind or too close.
 #[allow(clippy::too_many_arguments)]
@@ -142,32 +153,41 @@ impl Canvas<'_> {
     /// Draws `placements` (any order: they are drawn far to near). Returns
     /// the number of visible pixels per placement, in the given order.
     pub fn draw(&mut self, placements: &[Placement], sprites: &[Sprite]) -> Vec<usize> {
+        self.draw_counted(placements, sprites)
+            .into_iter()
+            .map(|c| c.visible_px)
+            .collect()
+    }
+
+    /// [`Self::draw`], with each placement's pixels in view before the
+    /// scene and nearer people hid any of them.
+    pub fn draw_counted(&mut self, placements: &[Placement], sprites: &[Sprite]) -> Vec<Drawn> {
         let mut order: Vec<usize> = (0..placements.len()).collect();
         order.sort_by(|&a, &b| placements[b].depth_m.total_cmp(&placements[a].depth_m));
         let occluders = match self.occlusion {
             Occlusion::Scene => occluder_depth(self.depth, self.width),
             Occlusion::None => vec![0; self.depth.len()],
         };
-        let mut visible = vec![0; placements.len()];
+        let mut counted = vec![Drawn::default(); placements.len()];
         for k in order {
-            visible[k] = self.draw_one(&placements[k], &sprites[placements[k].sprite], &occluders);
+            counted[k] = self.draw_one(&placements[k], &sprites[placements[k].sprite], &occluders);
         }
         // A nearer person may have covered pixels counted for a farther one.
         for (k, p) in placements.iter().enumerate() {
-            if visible[k] > 0 {
-                visible[k] = self.labels.iter().filter(|&&l| l == p.id).count();
+            if counted[k].visible_px > 0 {
+                counted[k].visible_px = self.labels.iter().filter(|&&l| l == p.id).count();
             }
         }
-        visible
+        counted
     }
 
     /// Draws one person where `occluders` (the scene's depth) is farther;
     /// people are drawn far to near, so a nearer one paints over.
-    fn draw_one(&mut self, p: &Placement, sprite: &Sprite, occluders: &[u16]) -> usize {
+    fn draw_one(&mut self, p: &Placement, sprite: &Sprite, occluders: &[u16]) -> Drawn {
         let (sw, sh) = (sprite.width() as f64, sprite.height() as f64);
         let scale = p.height_px / sh; // image pixels per sprite pixel
         if scale <= 0.0 || !scale.is_finite() {
-            return 0;
+            return Drawn::default();
         }
         let up = Vector2::new(p.up_px[0], p.up_px[1]);
         let down = -up;
@@ -179,7 +199,7 @@ impl Canvas<'_> {
         let x1 = ((cx + radius).ceil().max(0.0) as usize).min(self.width);
         let y1 = ((cy + radius).ceil().max(0.0) as usize).min(self.height);
         let units = depth_units(p.depth_m, self.depth_scale);
-        let mut drawn = 0;
+        let mut drawn = Drawn::default();
         for y in y0..y1 {
             for x in x0..x1 {
                 // Pixel centre relative to the person's centre, in sprite pixels.
@@ -201,6 +221,7 @@ impl Canvas<'_> {
                     };
                     rgb
                 };
+                drawn.unoccluded_px += 1;
                 let i = y * self.width + x;
                 let scene = occluders[i];
                 if scene != 0 && scene <= units {
@@ -209,7 +230,7 @@ impl Canvas<'_> {
                 self.rgb[3 * i..3 * i + 3].copy_from_slice(&rgb);
                 self.depth[i] = units;
                 self.labels[i] = p.id;
-                drawn += 1;
+                drawn.visible_px += 1;
             }
         }
         drawn
@@ -418,10 +439,22 @@ mod tests {
                 depth_scale: 5000.0,
                 occlusion: Occlusion::Scene,
             };
-            c.draw(&placements, &sprites);
+            let counted = c.draw_counted(&placements, &sprites);
             let centre = 24 * w + 32;
             assert_eq!(labels[centre], 1);
             assert_eq!(depth[centre], 5000);
+            // The farther one is mostly hidden; the nearer one not at all.
+            let near = placements.iter().position(|p| p.id == 1).unwrap();
+            let far = 1 - near;
+            assert_eq!(counted[near].visible_px, counted[near].unoccluded_px);
+            assert!(
+                counted[far].visible_px < counted[far].unoccluded_px / 2,
+                "{counted:?}"
+            );
+            assert_eq!(
+                counted[far].visible_px,
+                labels.iter().filter(|&&l| l == 2).count()
+            );
         }
     }
 }

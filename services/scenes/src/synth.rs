@@ -81,6 +81,10 @@ pub struct ObjectRecord {
     #[serde(flatten)]
     pub placement: Placement,
     pub visible_px: usize,
+    /// Pixels in the image were nothing in front of the person: what
+    /// `visible_px` falls short of it was hidden (`masks-eval`'s
+    /// "occluded" cause).
+    pub unoccluded_px: usize,
 }
 
 /// What a synthesis did, for the command's summary line.
@@ -329,7 +333,7 @@ impl FrameJob<'_> {
                 depth_scale: self.depth_scale,
                 occlusion: self.occlusion,
             };
-            canvas.draw(&placements, self.sprites)
+            canvas.draw_counted(&placements, self.sprites)
         };
         let name = |p: &Path| {
             p.file_name()
@@ -383,9 +387,10 @@ impl FrameJob<'_> {
             objects: placements
                 .into_iter()
                 .zip(visible)
-                .map(|(placement, visible_px)| ObjectRecord {
+                .map(|(placement, drawn)| ObjectRecord {
                     placement,
-                    visible_px,
+                    visible_px: drawn.visible_px,
+                    unoccluded_px: drawn.unoccluded_px,
                 })
                 .collect(),
         })

@@ -7,7 +7,8 @@
 //! keyframes, propagator otherwise), (e) the product's routing with masked
 //! pixels blacked out instead of keypoints filtered, (f, g) the product
 //! with the segmenter at 320 and 640 input (the default is 480), (h) the
-//! product with the SLAM's motion check; and, when the sequence
+//! product with the SLAM's motion check, (i) the product without the
+//! propagator's early segmenter requests; and, when the sequence
 //! was made by `dynslam synth` from a folder that still exists, the static
 //! original without people as the reference.
 
@@ -93,6 +94,12 @@ pub fn variants(static_original: Option<PathBuf>) -> Vec<Variant> {
             label: "(h) product routing, with the SLAM's motion check",
             dataset: None,
             apply: |c| c.services.slam.motion_check = true,
+        },
+        Variant {
+            key: "i",
+            label: "(i) product routing without early segmenter requests",
+            dataset: None,
+            apply: |c| c.routing.early_segment_requests = false,
         },
     ]);
     v
@@ -203,7 +210,7 @@ mod tests {
         let vs = variants(None);
         assert_eq!(
             vs.iter().map(|v| v.key).collect::<Vec<_>>(),
-            ["a", "b", "c", "d", "e", "f", "g", "h"]
+            ["a", "b", "c", "d", "e", "f", "g", "h", "i"]
         );
         let applied = |k: &str| {
             let mut c = base.clone();
@@ -220,6 +227,9 @@ mod tests {
         assert_eq!(applied("g").services.segmenter.input_size, Some(640));
         assert_ne!(base.services.segmenter.input_size, Some(320));
         assert!(applied("h").services.slam.motion_check && !base.services.slam.motion_check);
+        assert!(
+            !applied("i").routing.early_segment_requests && base.routing.early_segment_requests
+        );
         assert_eq!(variants(Some(PathBuf::from("/x")))[0].key, "static");
     }
 

@@ -733,10 +733,11 @@ fn masks_eval(
             }
         };
         println!(
-            "{name} by cause: {}  {}  {}  {}",
+            "{name} by cause: {}  {}  {}  {}  {}",
             part("entered since keyframe", &c.entered),
             part("border-cut", &c.border_cut),
             part("small", &c.small),
+            part("occluded", &c.occluded),
             part("none of these", &c.plain)
         );
     };

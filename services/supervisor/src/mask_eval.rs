@@ -87,17 +87,25 @@ impl Subset {
 /// several): `entered` (propagated frames only: not scored on the keyframe
 /// that prompted the propagator, so it walked in or grew past `min_px`
 /// since), `border_cut` (touches the image border), `small` (under
-/// [`scenes::truth::SMALL_SHARE`] of the image), `plain` (none of these).
+/// [`scenes::truth::SMALL_SHARE`] of the image), `occluded` (the scene or a
+/// nearer person hides more than [`OCCLUDED_SHARE`] of the silhouette the
+/// image would show; from `objects.json`, empty for a sequence made before
+/// it recorded that), `plain` (none of these).
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct ByCause {
     pub entered: Subset,
     pub border_cut: Subset,
     pub small: Subset,
+    pub occluded: Subset,
     pub plain: Subset,
 }
 
+/// A person hidden by more than this share of its in-image silhouette
+/// counts as occluded.
+pub const OCCLUDED_SHARE: f64 = 0.2;
+
 impl ByCause {
-    fn add(&mut self, s: &InstanceIou, entered: bool, image_px: usize) {
+    fn add(&mut self, s: &InstanceIou, entered: bool, occluded: bool, image_px: usize) {
         let small = s.small(image_px);
         if entered {
             self.entered.add(s.iou);
@@ -108,9 +116,91 @@ impl ByCause {
         if small {
             self.small.add(s.iou);
         }
-        if !(entered || s.border_cut || small) {
+        if occluded {
+            self.occluded.add(s.iou);
+        }
+        if !(entered || s.border_cut || small || occluded) {
             self.plain.add(s.iou);
         }
+    }
+}
+
+/// Per frame and person, how much of the silhouette the synthesised frame
+/// shows (`objects.json`: `visible_px` of `unoccluded_px`).
+#[derive(Debug, Default)]
+struct Occlusion {
+    /// Timestamp and the people of each frame.
+    frames: Vec<(f64, Vec<PersonPixels>)>,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct PersonPixels {
+    id: u8,
+    visible: usize,
+    unoccluded: usize,
+}
+
+#[derive(serde::Deserialize)]
+struct ObjectsFile {
+    frames: Vec<ObjectsFrame>,
+}
+
+#[derive(serde::Deserialize)]
+struct ObjectsFrame {
+    timestamp: f64,
+    objects: Vec<ObjectVisibility>,
+}
+
+#[derive(serde::Deserialize)]
+struct ObjectVisibility {
+    id: u8,
+    visible_px: usize,
+    /// Absent in sequences synthesised before it was recorded.
+    unoccluded_px: Option<usize>,
+}
+
+impl Occlusion {
+    /// `objects.json` of a `dynslam synth` folder; empty when there is
+    /// none or it predates `unoccluded_px`.
+    fn open(dataset: &Path) -> Result<Self> {
+        let path = dataset.join("objects.json");
+        if !path.exists() {
+            return Ok(Self::default());
+        }
+        let text = std::fs::read_to_string(&path)
+            .with_context(|| format!("cannot read {}", path.display()))?;
+        let file: ObjectsFile = serde_json::from_str(&text)
+            .with_context(|| format!("{}: not a `dynslam synth` objects file", path.display()))?;
+        let frames = file
+            .frames
+            .into_iter()
+            .map(|f| {
+                let people = f
+                    .objects
+                    .into_iter()
+                    .filter_map(|o| {
+                        Some(PersonPixels {
+                            id: o.id,
+                            visible: o.visible_px,
+                            unoccluded: o.unoccluded_px?,
+                        })
+                    })
+                    .collect();
+                (f.timestamp, people)
+            })
+            .collect();
+        Ok(Self { frames })
+    }
+
+    /// Whether person `id` is occluded in the frame at `timestamp`.
+    fn occluded(&self, timestamp: f64, id: u8) -> bool {
+        let frame = self
+            .frames
+            .iter()
+            .find(|(t, _)| (t - timestamp).abs() < 1e-4);
+        frame
+            .and_then(|(_, people)| people.iter().find(|p| p.id == id))
+            .is_some_and(|p| (p.visible as f64) < (1.0 - OCCLUDED_SHARE) * p.unoccluded as f64)
     }
 }
 
@@ -299,6 +389,7 @@ pub fn evaluate(
     let mut found_iou = Vec::new();
     let ignore = IgnoreRegions::open(dataset)?;
     let (mut seg_cause, mut prop_cause) = (ByCause::default(), ByCause::default());
+    let occlusion = Occlusion::open(dataset)?;
     let mut saved = save.map(SavedMasks::create).transpose()?;
     let mut progress = Progress::new("masks-eval", frames.len() as u64);
     for (k, frame) in frames.iter().enumerate() {
@@ -363,11 +454,12 @@ pub fn evaluate(
                 .collect();
             seg_iou.extend(scores.iter().map(|s| s.iou));
             for s in &scores {
-                seg_cause.add(s, false, w * h);
+                seg_cause.add(s, false, occlusion.occluded(frame.timestamp, s.id), w * h);
             }
         } else {
             for s in scores {
-                prop_cause.add(&s, !prompted_ids.contains(&s.id), w * h);
+                let occluded = occlusion.occluded(frame.timestamp, s.id);
+                prop_cause.add(&s, !prompted_ids.contains(&s.id), occluded, w * h);
                 prop_iou.push(s.iou);
                 by_offset[offset - 1].push(s.iou);
                 if prompted_ids.contains(&s.id) {

@@ -6,6 +6,8 @@ shared := justfile_directory() + "/../shared"
 tum := shared + "/data/tum/rgbd_dataset_freiburg1_rpy_first300"
 people := ".cache/synth/fr1_rpy_people"
 people_front := ".cache/synth/fr1_rpy_people_front"
+people_mixed := ".cache/synth/fr1_rpy_mixed_scene"
+people_mixed_front := ".cache/synth/fr1_rpy_mixed_none"
 
 # Build every service (release: the pipeline is only meaningful optimised).
 build:
@@ -130,14 +132,17 @@ bench-orb dataset=tum *args="":
     cargo build --release -p slam --features kornia --bin slam-bench --target-dir target/kornia
     ./target/kornia/release/slam-bench "{{dataset}}" --extractor kornia --out bench-results/slam_trajectory_kornia.txt {{args}}
 
-# Mask quality (segmenter, propagator IoU) on synth-people: people passing in front of the scene, then hidden by it.
+# Mask quality (segmenter, propagator IoU, by cause, people coming into view) on synth-people: people passing in front of the scene, then hidden by it; walking across, then in mixed behaviours (toward/away, stop and go).
 eval-masks: build setup synth-people
     @echo "== people passing in front of the scene ({{people_front}})"
     ./target/release/dynslam masks-eval {{people_front}}
     @echo "== people walking through the scene's geometry, hidden by it ({{people}})"
     ./target/release/dynslam masks-eval {{people}}
+    @echo "== mixed behaviours, in front of the scene ({{people_mixed_front}})"
+    ./target/release/dynslam masks-eval {{people_mixed_front}}
+    @echo "== mixed behaviours, hidden by the scene ({{people_mixed}})"
+    ./target/release/dynslam masks-eval {{people_mixed}}
 
-# People in the shared fr1_rpy sequence (3, seed 5) into .cache/synth: hidden by the nearer scene, and passing in front of it.
 # Loop closing on the rendered circuit (dynslam render --path circuit, cached in .cache/scenes): per-frame time and ATE without and with loop closing, 1000 and 250 ORB features (fewer drift more), back to back.
 bench-loops: build
     #!/usr/bin/env bash
@@ -167,18 +172,21 @@ bench-loops: build
             --out "bench-results/orbit_mono${loops:+_loops}.txt"
     done
 
+# People in the shared fr1_rpy sequence (3, seed 5) into .cache/synth: hidden by the nearer scene and passing in front of it, walking across and in mixed behaviours.
 synth-people: build
     #!/usr/bin/env bash
     set -euo pipefail
     synth_once() {
-        # objects.json records the options; one without "occlusion" is from an older synth.
-        if ! grep -qs '"occlusion"' "$1/objects.json"; then
+        # objects.json records what a synth wrote; one without "unoccluded_px" is from an older synth.
+        if ! grep -qs '"unoccluded_px"' "$1/objects.json"; then
             rm -rf "$1"
-            ./target/release/dynslam synth "{{tum}}" "$1" --objects 3 --seed 5 --occlusion "$2"
+            ./target/release/dynslam synth "{{tum}}" "$1" --objects 3 --seed 5 --occlusion "$2" --behaviour "$3"
         fi
     }
-    synth_once "{{people}}" scene
-    synth_once "{{people_front}}" none
+    synth_once "{{people}}" scene across
+    synth_once "{{people_front}}" none across
+    synth_once "{{people_mixed}}" scene mixed
+    synth_once "{{people_mixed_front}}" none mixed
 
 # Motion check (services.slam.motion_check) on a box carried through the shared room (dynslam synth --boxes 1, no masks): frames where it is found, features dropped (issue 21's bar: found in 80 %).
 eval-motion:

@@ -200,6 +200,45 @@ fn bad_synth_options_and_inputs_are_named() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success());
     assert!(err.contains("groundtruth.txt"), "{err}");
+    let o = synth(&dir.join("d"), &["--behaviour", "sideways"]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--behaviour"));
+}
+
+/// `--behaviour mixed`: the people take turns at walking across, toward and
+/// away, and across with stops, and objects.json says which.
+#[test]
+fn mixed_behaviours_are_recorded_and_move_as_named() {
+    let dir = scratch("synth-mixed");
+    let out = dir.join("mixed");
+    let o = synth(&out, &["--behaviour", "mixed", "--occlusion", "none"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let record: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("objects.json")).unwrap()).unwrap();
+    let behaviours: Vec<&str> = record["walkers"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|w| w["behaviour"].as_str().unwrap())
+        .collect();
+    assert_eq!(behaviours, ["across", "toward-away", "stop-and-go"]);
+    assert_eq!(record["options"]["behaviours"], "mixed");
+    // The toward-away walker's image height changes while its place
+    // across the image stays about the same.
+    let heights: Vec<f64> = record["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|f| f["objects"].as_array().unwrap().clone())
+        .filter(|o| o["id"] == 2)
+        .map(|o| o["height_px"].as_f64().unwrap())
+        .collect();
+    assert!(heights.len() > 10, "{heights:?}");
+    let (lo, hi) = heights
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(a, b), &h| (a.min(h), b.max(h)));
+    assert!(hi > 1.2 * lo, "toward-away heights {lo:.0}..{hi:.0} px");
+    std::fs::remove_dir_all(&dir).ok();
 }
 
 /// The mask-quality targets on the shared TUM frames with people

@@ -105,6 +105,7 @@ pub fn default_walks() -> WalkOptions {
         height_m: 0.9,
         seed: 3,
         occlusion: crate::walkers::Occlusion::Scene,
+        behaviours: crate::walkers::Behaviours::Across,
     }
 }
 

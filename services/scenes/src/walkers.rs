@@ -5,7 +5,11 @@
 //! its x axis, `up` its -y axis (cameras are held roughly level at the
 //! start). A walker keeps a distance in front of the first camera (swaying
 //! slowly nearer and farther) and walks along `right` between two turning
-//! points outside the view, so people enter, cross and leave.
+//! points outside the view, so people enter, cross and leave
+//! ([`Behaviour::Across`], every walker by default). With
+//! [`Behaviours::Mixed`] the people take turns at three behaviours: across,
+//! toward and away from the camera (along `forward`, inside the view), and
+//! across with stops (standing still between stretches of walking).
 
 use nalgebra::{Isometry3, Point3, Vector3};
 use serde::Serialize;
@@ -33,6 +37,36 @@ impl Stage {
     }
 }
 
+/// How one walker moves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Behaviour {
+    /// Back and forth along `right`, turning outside the view.
+    Across,
+    /// Back and forth along `forward` between its distance and twice the
+    /// farthest, at a fixed place across the view.
+    TowardAway,
+    /// [`Self::Across`], standing still for [`STOP_S`] after every
+    /// [`WALK_S`] of walking.
+    StopAndGo,
+}
+
+/// Stop-and-go: seconds of walking, then of standing.
+pub const WALK_S: f64 = 2.0;
+pub const STOP_S: f64 = 1.5;
+
+/// Which behaviours a scene's people take.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Behaviours {
+    /// Everyone walks across (what sequences were made with before).
+    #[default]
+    Across,
+    /// Person k takes across, toward-away, stop-and-go for k = 0, 1, 2, ...
+    /// (boxes always go across).
+    Mixed,
+}
+
 /// What walks.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -54,6 +88,11 @@ pub struct Walker {
     /// Instance id in the ground-truth masks (1..=255).
     pub id: u8,
     pub kind: Kind,
+    pub behaviour: Behaviour,
+    /// Toward-away: where across the view (metres along `right`).
+    pub lateral_m: f64,
+    /// Toward-away: the far turning point (metres in front).
+    pub far_m: f64,
     /// Index into the sprites.
     pub sprite: usize,
     /// Height of the cut-out in the world (metres).
@@ -109,6 +148,8 @@ pub struct WalkOptions {
     pub height_m: f64,
     pub seed: u64,
     pub occlusion: Occlusion,
+    #[serde(default)]
+    pub behaviours: Behaviours,
 }
 
 impl Default for WalkOptions {
@@ -122,6 +163,7 @@ impl Default for WalkOptions {
             height_m: 0.75,
             seed: 1,
             occlusion: Occlusion::Scene,
+            behaviours: Behaviours::Across,
         }
     }
 }
@@ -182,9 +224,26 @@ pub fn walkers(options: &WalkOptions, half_fov_tan: f64, aspects: &[f64]) -> Vec
             let distance_m = options.near_m + (options.far_m - options.near_m) * slot;
             let half_width = 0.5 * height_m * aspect;
             let half_span_m = (distance_m + options.far_m * 0.2) * half_fov_tan + half_width + 0.3;
+            let behaviour = match options.behaviours {
+                Behaviours::Mixed if person => [
+                    Behaviour::Across,
+                    Behaviour::TowardAway,
+                    Behaviour::StopAndGo,
+                ][k % 3],
+                _ => Behaviour::Across,
+            };
+            // Toward-away keeps inside the middle half of the view at its
+            // nearest point. Drawn from a stream of its own, so that scenes
+            // made before behaviours existed come out the same.
+            let mut own =
+                SplitMix64::new(options.seed ^ 0xb3ba_7105_u64.wrapping_mul(k as u64 + 1));
+            let lateral_m = own.uniform(-0.5, 0.5) * options.near_m * half_fov_tan;
             Walker {
                 id: (k + 1) as u8,
                 kind,
+                behaviour,
+                lateral_m,
+                far_m: 2.0 * options.far_m,
                 sprite,
                 height_m,
                 distance_m,
@@ -202,17 +261,36 @@ pub fn walkers(options: &WalkOptions, half_fov_tan: f64, aspects: &[f64]) -> Vec
 impl Walker {
     /// Where the walker is `t` seconds after the sequence start.
     pub fn state(&self, stage: &Stage, t: f64) -> WalkerState {
-        let span = 2.0 * self.half_span_m;
-        let s = (self.phase_m + self.speed_mps * t).rem_euclid(2.0 * span);
-        let (lateral, leftwards) = if s < span {
-            (-self.half_span_m + s, false)
-        } else {
-            (self.half_span_m - (s - span), true)
+        // Time spent walking (a stop-and-go walker stands between stretches).
+        let walked = match self.behaviour {
+            Behaviour::StopAndGo => {
+                let cycle = WALK_S + STOP_S;
+                (t / cycle).floor() * WALK_S + (t.rem_euclid(cycle)).min(WALK_S)
+            }
+            _ => t,
         };
-        let distance = self.distance_m
-            + self.sway_m * (2.0 * std::f64::consts::PI * t / self.sway_period_s).sin();
+        let sway = self.sway_m * (2.0 * std::f64::consts::PI * walked / self.sway_period_s).sin();
+        let (lateral, distance, leftwards) = match self.behaviour {
+            Behaviour::TowardAway => {
+                let (near, far) = (self.distance_m.min(self.far_m), self.far_m);
+                let span = far - near;
+                let s = (self.phase_m + self.speed_mps * walked).rem_euclid(2.0 * span.max(1e-9));
+                let distance = if s < span { far - s } else { near + (s - span) };
+                (self.lateral_m, distance, self.id.is_multiple_of(2))
+            }
+            Behaviour::Across | Behaviour::StopAndGo => {
+                let span = 2.0 * self.half_span_m;
+                let s = (self.phase_m + self.speed_mps * walked).rem_euclid(2.0 * span);
+                let (lateral, leftwards) = if s < span {
+                    (-self.half_span_m + s, false)
+                } else {
+                    (self.half_span_m - (s - span), true)
+                };
+                (lateral, self.distance_m + sway, leftwards)
+            }
+        };
         // A walker's centre bobs about 2 cm at step frequency (about 1.8 Hz).
-        let bob = 0.02 * (2.0 * std::f64::consts::PI * 1.8 * t).sin();
+        let bob = 0.02 * (2.0 * std::f64::consts::PI * 1.8 * walked).sin();
         let centre = stage.origin
             + stage.forward * distance
             + stage.right * lateral
@@ -254,6 +332,58 @@ mod tests {
             }
             assert!(fast > 950, "{fast}");
         }
+    }
+
+    #[test]
+    fn mixed_behaviours_walk_toward_and_away_and_stop() {
+        let opts = WalkOptions {
+            objects: 3,
+            boxes: 1,
+            behaviours: Behaviours::Mixed,
+            ..Default::default()
+        };
+        let ws = walkers(&opts, 0.62, &[0.7, 0.65]);
+        let kinds: Vec<_> = ws.iter().map(|w| w.behaviour).collect();
+        assert_eq!(
+            kinds,
+            [
+                Behaviour::Across,
+                Behaviour::TowardAway,
+                Behaviour::StopAndGo,
+                Behaviour::Across
+            ]
+        );
+        let at = |w: &Walker, t: f64| w.state(&stage(), t).centre;
+        // Toward-away: one place across the view, from its distance to
+        // twice the farthest, at walking speed.
+        let w = &ws[1];
+        let (mut nearest, mut farthest) = (f64::MAX, f64::MIN);
+        for i in 0..2000 {
+            let c = at(w, i as f64 * 0.01);
+            assert!((c.x - w.lateral_m).abs() < 1e-9);
+            nearest = nearest.min(c.z);
+            farthest = farthest.max(c.z);
+        }
+        assert!(nearest < w.distance_m + 0.05 && farthest > 2.0 * opts.far_m - 0.05);
+        let at_speed = (0..1000)
+            .filter(|&i| {
+                let t = i as f64 * 0.05;
+                ((at(w, t + 0.01).z - at(w, t).z).abs() / 0.01 - w.speed_mps).abs() < 1e-6
+            })
+            .count();
+        assert!(at_speed > 900, "{at_speed} of 1000 steps at walking speed");
+        // Stop-and-go: stands still (bob included) for STOP_S after WALK_S.
+        let w = &ws[2];
+        let standing = (at(w, WALK_S + 0.2) - at(w, WALK_S + STOP_S - 0.2)).norm();
+        assert!(standing < 1e-9, "moved {standing} m while standing");
+        let walking = (at(w, 0.2) - at(w, 1.2)).norm();
+        assert!(
+            walking > 0.5 * w.speed_mps,
+            "walked {walking} m in a second"
+        );
+        // Default: everyone across, as before.
+        let across = walkers(&WalkOptions::default(), 0.62, &[0.7]);
+        assert!(across.iter().all(|w| w.behaviour == Behaviour::Across));
     }
 
     #[test]

@@ -192,6 +192,11 @@ enum Command {
         /// between the camera and the scene, drawn whole).
         #[arg(long, value_enum, default_value_t = OcclusionArg::Scene)]
         occlusion: OcclusionArg,
+        /// How people walk: `across` (back and forth across the view,
+        /// entering and leaving at its sides) or `mixed` (in turn: across,
+        /// toward and away from the camera, across with stops).
+        #[arg(long, value_enum, default_value_t = BehavioursArg::Across)]
+        behaviour: BehavioursArg,
         /// Synthesise only the first N frames.
         #[arg(long)]
         limit: Option<usize>,
@@ -270,6 +275,12 @@ enum CameraPathArg {
     Glide,
     Circuit,
     Orbit,
+}
+
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum BehavioursArg {
+    Across,
+    Mixed,
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -525,6 +536,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             height,
             seed,
             occlusion,
+            behaviour,
             limit,
             config,
         } => {
@@ -539,6 +551,10 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                 occlusion: match occlusion {
                     OcclusionArg::Scene => scenes::walkers::Occlusion::Scene,
                     OcclusionArg::None => scenes::walkers::Occlusion::None,
+                },
+                behaviours: match behaviour {
+                    BehavioursArg::Across => scenes::walkers::Behaviours::Across,
+                    BehavioursArg::Mixed => scenes::walkers::Behaviours::Mixed,
                 },
             };
             synth(&input, &output, &options, limit, config.as_deref()).map(|()| ExitCode::SUCCESS)

@@ -391,7 +391,7 @@ impl LkPropagator {
         let objects = std::mem::take(&mut self.objects);
         let (prev_ref, cur_ref) = (&*prev, &cur);
         // The check runs beside the objects' propagation, on another core
-        // when one is free: it adds no latency to the masks.
+        // when one is free: the masks wait only for the longer of the two.
         let (kept, newcomer) = std::thread::scope(|scope| {
             let check = match (self.newcomers.as_mut(), depth, covered) {
                 (Some(check), Some(depth), Some(covered)) => Some(

@@ -45,6 +45,8 @@ struct Job {
 pub struct Truth {
     pub masks: MaskList,
     pub timestamps: Vec<f64>,
+    /// Left out of every score (see [`crate::ignore`]).
+    pub ignore: crate::ignore::IgnoreRegions,
 }
 
 pub struct MaskRecorder {
@@ -90,6 +92,7 @@ impl MaskRecorder {
         let writer = std::thread::Builder::new()
             .name("mask-recorder".into())
             .spawn(move || -> Result<()> {
+                let mut ignore_warned = false;
                 for job in rx {
                     let mut file = String::new();
                     if job.save {
@@ -100,15 +103,28 @@ impl MaskRecorder {
                         file = format!("{MASKS_DIR}/{:06}.png", job.seq);
                     }
                     if let (Some(out), Some(t)) = (iou_csv.as_mut(), truth.as_ref()) {
-                        let gt = t
-                            .timestamps
-                            .get(job.seq as usize)
-                            .and_then(|&ts| t.masks.load_at(ts).ok());
-                        if let Some(gt) = gt.filter(|g| g.dimensions() == job.labels.dimensions()) {
+                        let ts = t.timestamps.get(job.seq as usize).copied();
+                        let gt = ts.and_then(|ts| t.masks.load_at(ts).ok());
+                        if let (Some(gt), Some(ts)) =
+                            (gt.filter(|g| g.dimensions() == job.labels.dimensions()), ts)
+                        {
+                            let (w, h) = (gt.width() as usize, gt.height() as usize);
+                            // An ignore image of the wrong size is said
+                            // once; the frame is then scored without it.
+                            let ignored = match t.ignore.at(ts, w, h) {
+                                Ok(i) => i,
+                                Err(e) => {
+                                    if !ignore_warned {
+                                        tracing::warn!("mask scores: {e:#}");
+                                        ignore_warned = true;
+                                    }
+                                    None
+                                }
+                            };
                             for p in scenes::truth::instance_ious(
                                 job.labels.as_raw(),
                                 gt.as_raw(),
-                                None,
+                                ignored.as_deref(),
                                 gt.width() as usize,
                                 MIN_PERSON_PX,
                             ) {
@@ -328,6 +344,7 @@ mod tests {
         gt.save(data.join("masks/b.png")).unwrap();
         std::fs::write(data.join("masks.txt"), "1.0 masks/a.png\n2.0 masks/b.png\n").unwrap();
         let truth = Truth {
+            ignore: Default::default(),
             masks: MaskList::open(&data).unwrap().unwrap(),
             timestamps: vec![1.0, 2.0],
         };
@@ -369,6 +386,23 @@ mod tests {
         assert_eq!(ious[&0][0].iou, 1.0);
         assert_eq!(ious[&0][0].source, "segmenter");
         assert!((ious[&1][0].iou - 0.24).abs() < 1e-6, "{:?}", ious[&1]);
+
+        // An ignore.png over the whole image leaves nobody to score.
+        GrayImage::from_pixel(w as u32, h as u32, image::Luma([1]))
+            .save(data.join("ignore.png"))
+            .unwrap();
+        let truth = Truth {
+            ignore: crate::ignore::IgnoreRegions::open(&data).unwrap(),
+            masks: MaskList::open(&data).unwrap().unwrap(),
+            timestamps: vec![1.0, 2.0],
+        };
+        let run = dir.join("run-ignored");
+        std::fs::create_dir_all(&run).unwrap();
+        let mut rec = MaskRecorder::start(&run, SaveMasks::Keyframes, Some(truth)).unwrap();
+        rec.record(&MasksView::new(&h0, &whole).unwrap());
+        rec.record(&MasksView::new(&h1, &quarter).unwrap());
+        assert_eq!(rec.finish().unwrap(), 0);
+        assert!(read_ious(&run).unwrap().is_empty(), "ignored people scored");
         std::fs::remove_dir_all(&dir).ok();
     }
 }

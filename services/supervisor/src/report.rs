@@ -151,7 +151,8 @@ pub fn write(
     let truth = MaskList::open(dataset).ok().flatten();
     let (scores, ious) = match &truth {
         Some(t) => {
-            let (s, i) = mask_scores(run_dir, rows, &mask_rows, t)?;
+            let ignore = crate::ignore::IgnoreRegions::open(dataset)?;
+            let (s, i) = mask_scores(run_dir, rows, &mask_rows, t, &ignore)?;
             (Some(s), i)
         }
         None => (None, Vec::new()),
@@ -564,6 +565,7 @@ fn mask_scores(
     rows: &[FrameRow],
     mask_rows: &[MaskRow],
     truth: &MaskList,
+    ignore: &crate::ignore::IgnoreRegions,
 ) -> Result<(MaskScores, Vec<FrameIou>)> {
     let masked: std::collections::HashSet<u64> = mask_rows.iter().map(|m| m.seq).collect();
     let scored = read_ious(run_dir)?;
@@ -580,10 +582,11 @@ fn mask_scores(
             continue;
         };
         let none = vec![0u8; gt.as_raw().len()];
+        let ignored = ignore.at(r.timestamp, gt.width() as usize, gt.height() as usize)?;
         for s in scenes::truth::instance_ious(
             &none,
             gt.as_raw(),
-            None,
+            ignored.as_deref(),
             gt.width() as usize,
             MIN_PERSON_PX,
         ) {

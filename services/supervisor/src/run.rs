@@ -981,6 +981,7 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
         (Ok(Some(masks)), Some(frames)) => Some(crate::mask_record::Truth {
             masks,
             timestamps: frames.iter().map(|f| f.timestamp).collect(),
+            ignore: crate::ignore::IgnoreRegions::open(&sup.config.source.path)?,
         }),
         _ => None,
     };

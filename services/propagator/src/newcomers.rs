@@ -225,20 +225,20 @@ impl NewcomerCheck {
         self.requests
     }
 
-    /// Looks for a newcomer between `prev` and `cur`: `covered_prev` marks
-    /// the previous frame's pixels that followed objects cover (they are
-    /// left out, with a cell of margin), `depth` is the new frame's. Some
-    /// when a segmenter run is to be asked for now.
+    /// Looks for a newcomer between `prev` and `cur`: `followed` are the
+    /// full-frame masks of the objects followed in the previous frame
+    /// (their pixels are left out, with a cell of margin), `depth` is the
+    /// new frame's. Some when a segmenter run is to be asked for now.
     pub fn check(
         &mut self,
         prev: &Pyramid,
         cur: &Pyramid,
-        covered_prev: &[bool],
+        followed: &[&[bool]],
         depth: DepthImage,
         lk: LkParams,
     ) -> Option<Newcomer> {
         self.cooldown = self.cooldown.saturating_sub(1);
-        let found = self.find(prev, cur, covered_prev, depth, lk);
+        let found = self.find(prev, cur, followed, depth, lk);
         let before = std::mem::replace(&mut self.last, found);
         let margin = self.params.cell_px;
         let found = found.filter(|f| before.is_some_and(|b| f.near(&b, margin)))?;
@@ -254,14 +254,14 @@ impl NewcomerCheck {
         &mut self,
         prev: &Pyramid,
         cur: &Pyramid,
-        covered_prev: &[bool],
+        followed: &[&[bool]],
         depth: DepthImage,
         lk: LkParams,
     ) -> Option<Newcomer> {
         let base = prev.levels.first()?;
         let (width, height) = (base.width, base.height);
         if cur.levels.first().map(|g| (g.width, g.height)) != Some((width, height))
-            || covered_prev.len() != width * height
+            || followed.iter().any(|m| m.len() != width * height)
             || depth.raw.len() < width * height * 2
         {
             return None;
@@ -281,7 +281,9 @@ impl NewcomerCheck {
                         && py >= 0
                         && (px as usize) < width
                         && (py as usize) < height
-                        && covered_prev[py as usize * width + px as usize]
+                        && followed
+                            .iter()
+                            .any(|m| m[py as usize * width + px as usize])
                 })
         };
         // Half resolution is precise enough for residuals of several
@@ -619,13 +621,12 @@ mod tests {
             per_metre: 5000.0,
         };
         let mut check = NewcomerCheck::new(camera(), NewcomerParams::default());
-        let none = vec![false; W * H];
         // Found in a first frame, asked for when found again in the next.
         assert!(check
-            .check(&prev, &cur, &none, depth, LkParams::default())
+            .check(&prev, &cur, &[], depth, LkParams::default())
             .is_none());
         let found = check
-            .check(&prev, &cur, &none, depth, LkParams::default())
+            .check(&prev, &cur, &[], depth, LkParams::default())
             .expect("the patch moves unlike the pan");
         // The patch is at x 197..261, y 90..154 in the new frame.
         let [x0, y0, x1, y1] = found.bbox;
@@ -634,11 +635,11 @@ mod tests {
         // The same again within the cooldown: no second request.
         for _ in 1..NewcomerParams::default().cooldown_frames {
             assert!(check
-                .check(&prev, &cur, &none, depth, LkParams::default())
+                .check(&prev, &cur, &[], depth, LkParams::default())
                 .is_none());
         }
         assert!(check
-            .check(&prev, &cur, &none, depth, LkParams::default())
+            .check(&prev, &cur, &[], depth, LkParams::default())
             .is_some());
         assert_eq!(check.requests(), 2);
     }
@@ -651,10 +652,9 @@ mod tests {
             per_metre: 5000.0,
         };
         let (prev, cur) = pan_with_patch(false);
-        let none = vec![false; W * H];
         let mut check = NewcomerCheck::new(camera(), NewcomerParams::default());
         assert_eq!(
-            check.check(&prev, &cur, &none, depth, LkParams::default()),
+            check.check(&prev, &cur, &[], depth, LkParams::default()),
             None
         );
         // The mover is an object the propagator already follows.
@@ -666,7 +666,7 @@ mod tests {
             })
             .collect();
         assert_eq!(
-            check.check(&prev, &cur, &covered, depth, LkParams::default()),
+            check.check(&prev, &cur, &[&covered], depth, LkParams::default()),
             None
         );
         assert_eq!(check.requests(), 0);
@@ -695,9 +695,8 @@ mod tests {
             per_metre: 5000.0,
         };
         let mut check = NewcomerCheck::new(camera(), NewcomerParams::default());
-        let none = vec![false; W * H];
         assert_eq!(
-            check.check(&prev, &cur, &none, depth, LkParams::default()),
+            check.check(&prev, &cur, &[], depth, LkParams::default()),
             None
         );
     }

@@ -377,44 +377,45 @@ impl LkPropagator {
             return Vec::new();
         };
         let params = self.params;
-        // What the followed objects cover in the previous frame: the
-        // newcomer check looks only outside it.
-        let covered = (self.newcomers.is_some() && depth.is_some()).then(|| {
-            let mut covered = vec![false; width * height];
-            for obj in &self.objects {
-                for (c, &m) in covered.iter_mut().zip(&obj.mask) {
-                    *c |= m;
-                }
-            }
-            covered
-        });
-        let objects = std::mem::take(&mut self.objects);
         let (prev_ref, cur_ref) = (&*prev, &cur);
-        // The check runs beside the objects' propagation, on another core
-        // when one is free: the masks wait only for the longer of the two.
-        let (kept, newcomer) = std::thread::scope(|scope| {
-            let check = match (self.newcomers.as_mut(), depth, covered) {
-                (Some(check), Some(depth), Some(covered)) => Some(
-                    scope.spawn(move || check.check(prev_ref, cur_ref, &covered, depth, params.lk)),
-                ),
+        let objects = std::mem::take(&mut self.objects);
+        // The newcomer check looks outside what the followed objects cover
+        // in the previous frame (their masks, read in place). It runs
+        // beside the objects' propagation, on another core when one is
+        // free: the masks wait only for the longer of the two.
+        let followed: Vec<&[bool]> = objects.iter().map(|o| o.mask.as_slice()).collect();
+        let (moved, newcomer) = std::thread::scope(|scope| {
+            let check = match (self.newcomers.as_mut(), depth) {
+                (Some(check), Some(depth)) => Some({
+                    let followed = &followed;
+                    scope.spawn(move || check.check(prev_ref, cur_ref, followed, depth, params.lk))
+                }),
                 _ => None,
             };
-            let mut kept = Vec::new();
-            for mut obj in objects {
-                if let Some((mask, motion)) = follow(
-                    prev_ref, cur_ref, &obj.mask, obj.motion, width, height, &params,
-                ) {
-                    obj.mask = mask;
-                    obj.motion = motion;
-                    kept.push(obj);
-                }
-            }
+            let moved: Vec<_> = objects
+                .iter()
+                .map(|obj| {
+                    follow(
+                        prev_ref, cur_ref, &obj.mask, obj.motion, width, height, &params,
+                    )
+                })
+                .collect();
             let newcomer = check.and_then(|h| {
                 h.join()
                     .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
             });
-            (kept, newcomer)
+            (moved, newcomer)
         });
+        let kept = objects
+            .into_iter()
+            .zip(moved)
+            .filter_map(|(mut obj, moved)| {
+                let (mask, motion) = moved?;
+                obj.mask = mask;
+                obj.motion = motion;
+                Some(obj)
+            })
+            .collect();
         self.newcomer = newcomer;
         self.objects = kept;
         self.prev = Some(Arc::new(cur));

@@ -262,8 +262,13 @@ impl Entries {
         }
         self.waiting.retain(|(id, _)| !masked.contains(id));
         self.visible = now;
+    }
+
+    /// The counts with the median delay.
+    fn finish(mut self) -> Self {
         self.delays.sort_by(f64::total_cmp);
         self.delay_frames_p50 = pipeline::stats::percentile(&self.delays, 50.0);
+        self
     }
 
     /// Share of the entries masked in time.
@@ -359,23 +364,26 @@ pub fn evaluate(
         };
         since_segment = offset;
         requested = false;
-        let depth = match &frame.depth {
-            Some(path) => {
-                depth_buf.resize(w * h * 2, 0);
-                decode_depth_into(path, (w as u32, h as u32), &mut depth_buf)?;
-                Some(DepthImage {
-                    raw: &depth_buf,
-                    per_metre: config.source.depth_scale,
-                })
-            }
-            None => None,
-        };
         let t = std::time::Instant::now();
         if offset == 0 {
             let instances = segmenter.segment(rgb.as_raw(), w, h, &mut labels)?;
             seg_ms.push(t.elapsed().as_secs_f64() * 1e3);
             propagator.prompt_with(rgb.as_raw(), w, h, &labels, &instances);
         } else {
+            // Depth only where the newcomer check reads it (decoded before
+            // the clock starts).
+            let depth = match &frame.depth {
+                Some(path) if config.routing.early_segment_requests => {
+                    depth_buf.resize(w * h * 2, 0);
+                    decode_depth_into(path, (w as u32, h as u32), &mut depth_buf)?;
+                    Some(DepthImage {
+                        raw: &depth_buf,
+                        per_metre: config.source.depth_scale,
+                    })
+                }
+                _ => None,
+            };
+            let t = std::time::Instant::now();
             propagator.propagate_rgbd(rgb.as_raw(), depth, w, h, &mut labels);
             prop_ms.push(t.elapsed().as_secs_f64() * 1e3);
             requested = propagator.take_newcomer().is_some();
@@ -434,7 +442,7 @@ pub fn evaluate(
         propagator_by_cause: prop_cause,
         ignore_regions: ignore.any(),
         early_segments,
-        entries,
+        entries: entries.finish(),
         segmenter_ms_p50: pipeline::stats::percentile(&seg_ms, 50.0),
         propagator_ms_p50: pipeline::stats::percentile(&prop_ms, 50.0),
     })

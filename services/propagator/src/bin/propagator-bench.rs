@@ -212,13 +212,12 @@ fn time_newcomer_check(
         decode_depth_into(depth_path, (w as u32, h as u32), &mut depth)?;
         let cur = Pyramid::new(Gray::from_rgb(rgb.as_raw(), w, h), lk.pyramid_levels);
         if let Some(prev) = &prev {
-            let covered = vec![false; w * h];
             let depth = DepthImage {
                 raw: &depth,
                 per_metre: 5000.0,
             };
             let t = Instant::now();
-            check.check(prev, &cur, &covered, depth, lk.lk);
+            check.check(prev, &cur, &[], depth, lk.lk);
             ms.push(t.elapsed().as_secs_f64() * 1e3);
         }
         prev = Some(cur);

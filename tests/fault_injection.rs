@@ -360,9 +360,9 @@ fn kill_any_service_at_any_moment_and_the_run_completes() {
 /// least 10 times, and every other kind at least once (the supervisor
 /// included). Every restart goes on from the map checkpoint in the one
 /// world frame: every frame recorded exactly once, restarts == kills, and
-/// the ATE of the killed run <= 0.025 m; its ratio to the unkilled run's
-/// (same config, same test) and the frames each restart lost before
-/// relocalising are printed.
+/// the ATE of the killed run <= 0.025 m and <= 1.5x the unkilled run's
+/// (same config, same test); the ratio and the frames each restart lost
+/// before relocalising are printed.
 #[test]
 fn the_real_slam_killed_again_and_again_goes_on_in_one_world_frame() {
     let dir = scratch("slam-faults");
@@ -477,12 +477,19 @@ fn the_real_slam_killed_again_and_again_goes_on_in_one_world_frame() {
         "{report}"
     );
     assert!(!report.contains("Several world frames"), "{report}");
-    // The issue also asks for <= 1.5x the unkilled run's ATE: measured
-    // x1.14, x1.18, x1.61, then (newest checkpoint always written) x1.32,
-    // x1.51, x1.33 (the kill moments are random;
-    // replaying a run's restarts in the library, see
-    // services/slam-core/tests/restart_replay.rs, gives x1.26 for the x1.61
-    // one). Not met reliably yet: the ratio is printed above, not asserted.
+    // Each restart resumed its predecessor's motion from the supervisor's
+    // record of the last tracked frames.
+    assert!(
+        run_dir.join("slam-resume-poses.txt").is_file(),
+        "no resume poses were handed to a restarted SLAM"
+    );
+    // Before the supervisor handed the restarted SLAM its predecessor's last
+    // poses and the keyframe rule had its reference back, the ratio was
+    // x1.14-x1.75 over seven runs; since, x0.91, x0.91, x1.06.
+    assert!(
+        ate <= 1.5 * calm_ate,
+        "killed run ATE {ate} m is more than 1.5x the unkilled run's {calm_ate} m"
+    );
     assert!(ate <= 0.025, "ATE {ate} m against {calm_ate} m unkilled");
     assert_no_shm_left(&run_id);
     assert!(

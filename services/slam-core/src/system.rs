@@ -226,7 +226,7 @@ impl System {
     pub fn resume_motion(&mut self, poses_wc: &[(f64, Isometry3<f64>)]) {
         let recent: Vec<(f64, Isometry3<f64>)> =
             poses_wc.iter().map(|&(t, p)| (t, p.inverse())).collect();
-        self.tracking.resume_motion(&recent);
+        self.tracking.resume_motion(&recent, &self.map);
     }
 
     /// ORB-SLAM2's localization mode: frames are tracked (and relocalised)

@@ -214,6 +214,9 @@ struct Supervisor {
     /// When a frame was last recorded (or a service last came up): the
     /// watchdog's clock.
     last_progress: Instant,
+    /// The newest tracked frames, oldest first: a restarted SLAM resumes
+    /// its motion model from them (`--resume-poses`).
+    recent_tracked: RecentTracked,
 }
 
 impl Supervisor {
@@ -253,6 +256,16 @@ impl Supervisor {
             if self.next_seq > 0 {
                 // A restart (or a resume): does it go on in the map?
                 let from = if checkpoint.is_file() {
+                    let poses = run_dir.join(crate::map_files::RESUME_POSES_FILE);
+                    match write_tum(&poses, &self.recent_tracked.rows, |_| true) {
+                        Ok(_) => {
+                            args.push("--resume-poses".into());
+                            args.push(poses.to_string_lossy().into_owned());
+                        }
+                        Err(e) => tracing::warn!(
+                            "the restarted SLAM relocalises instead of resuming its motion: {e:#}"
+                        ),
+                    }
                     "checkpoint"
                 } else {
                     "empty"
@@ -297,6 +310,7 @@ impl Supervisor {
             return Ok(());
         }
         self.log.append(&row)?;
+        self.recent_tracked.offer(&row);
         self.last_progress = Instant::now();
         self.pending.remove(&row.seq);
         self.recorded.insert(row.seq);
@@ -817,6 +831,37 @@ fn send_route(
     })
 }
 
+/// The last few tracked frames by sequence number, oldest first (as many as
+/// the SLAM's motion model and rolling-shutter correction use).
+#[derive(Debug, Default)]
+struct RecentTracked {
+    rows: Vec<FrameRow>,
+}
+
+impl RecentTracked {
+    const KEEP: usize = 3;
+
+    fn from_rows(rows: &[FrameRow]) -> Self {
+        let mut recent = Self::default();
+        for r in rows {
+            recent.offer(r);
+        }
+        recent
+    }
+
+    /// Keeps `row` if it is tracked and among the newest.
+    fn offer(&mut self, row: &FrameRow) {
+        if !row.is_tracked() {
+            return;
+        }
+        let at = self.rows.partition_point(|r| r.seq < row.seq);
+        self.rows.insert(at, row.clone());
+        if self.rows.len() > Self::KEEP {
+            self.rows.remove(0);
+        }
+    }
+}
+
 /// Runs (or resumes) the run in `run_dir` to its end.
 pub fn execute(run_dir: &Path) -> Result<RunSummary> {
     let (info, config) = run_dir::open(run_dir)?;
@@ -884,6 +929,7 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
         status_dirty: true,
         fatal: None,
         last_progress: Instant::now(),
+        recent_tracked: RecentTracked::from_rows(&old_rows),
         config,
     };
     sup.next_seq = sup.recorded.first_missing();
@@ -1190,4 +1236,33 @@ fn finish_outputs(
         degraded,
         latency_table: table,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(seq: u64, state: &str) -> FrameRow {
+        FrameRow {
+            seq,
+            timestamp: seq as f64 / 30.0,
+            state: state.into(),
+            ..FrameRow::default()
+        }
+    }
+
+    #[test]
+    fn recent_tracked_keeps_the_newest_tracked_frames_in_order() {
+        let mut recent = RecentTracked::from_rows(&[row(0, "ok"), row(1, "lost"), row(2, "ok")]);
+        for r in [
+            row(5, "relocalised"),
+            row(4, "ok"),
+            row(6, "skipped"),
+            row(3, "ok"),
+        ] {
+            recent.offer(&r);
+        }
+        let seqs: Vec<u64> = recent.rows.iter().map(|r| r.seq).collect();
+        assert_eq!(seqs, [3, 4, 5]);
+    }
 }

@@ -149,12 +149,13 @@ impl Tracking {
     /// system (a restarted process): `recent` are their (timestamp, camera
     /// from world), oldest first. The motion model and the rolling-shutter
     /// correction come back at once instead of after relocalisation.
-    pub fn resume_motion(&mut self, recent: &[(f64, Isometry3<f64>)]) {
+    pub fn resume_motion(&mut self, recent: &[(f64, Isometry3<f64>)], map: &Map) {
         let recent = &recent[recent.len().saturating_sub(MOTION_HISTORY)..];
         let Some(&(_, last)) = recent.last() else {
             return;
         };
         self.reset();
+        self.reference_inliers = reference_points(map);
         self.last_pose = Some(last);
         if let [.., (t0, before), (t1, _)] = recent {
             self.velocity = Some((renormalized(&(last * before.inverse())), t1 - t0));
@@ -487,4 +488,28 @@ impl Tracking {
             culled: false,
         })
     }
+}
+
+/// What the newest keyframe of `map` tracks, for a resumed system's
+/// keyframe rule (the inliers of the frame that made it died with the old
+/// process): its live points that another keyframe observes too (ORB-SLAM2's
+/// `TrackedMapPoints`), all of its live points when it is the only keyframe.
+fn reference_points(map: &Map) -> usize {
+    let Some((newest, keyframe)) = map.live_keyframes().next_back() else {
+        return 0;
+    };
+    let min_observers = if map.live_keyframes().nth(1).is_some() {
+        2
+    } else {
+        1
+    };
+    keyframe
+        .points
+        .iter()
+        .map(|&p| &map.points[p])
+        .filter(|p| {
+            p.is_live() && p.observers.iter().filter(|&&k| k != newest).count() + 1 >= min_observers
+        })
+        .count()
+        .max(1)
 }

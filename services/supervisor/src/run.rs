@@ -831,15 +831,15 @@ fn send_route(
     })
 }
 
-/// The last few tracked frames by sequence number, oldest first (as many as
-/// the SLAM's motion model and rolling-shutter correction use).
+/// The last few tracked frames by sequence number, oldest first: as many
+/// as the SLAM's motion model and rolling-shutter correction use.
 #[derive(Debug, Default)]
 struct RecentTracked {
     rows: Vec<FrameRow>,
 }
 
 impl RecentTracked {
-    const KEEP: usize = 3;
+    const KEEP: usize = slam_core::tracking::MOTION_HISTORY;
 
     fn from_rows(rows: &[FrameRow]) -> Self {
         let mut recent = Self::default();

@@ -26,7 +26,7 @@ use crate::params::SlamParams;
 use crate::place_recognition::Vocabulary;
 
 /// Tracked frames the rolling-shutter correction estimates the motion over.
-const MOTION_HISTORY: usize = 3;
+pub const MOTION_HISTORY: usize = 3;
 
 /// Whether a live keyframe of `map` older than the `recent` newest was
 /// taken within `metres` and `degrees` of `pose_cw` (it sees what a new

@@ -74,15 +74,15 @@ evo:
     # it at once on a fresh machine race for the mkdir (FileExistsError).
     "$venv/bin/evo_config" show > /dev/null
 
-# iceoryx2's Python binding (PyPI, the version of our crate) in the repo's ignored .cache, for the pose-stream example and its test.
+# iceoryx2's Python binding (PyPI, the version of our crate) and Pillow in the repo's ignored .cache, for the pose-stream and frame-publisher examples and their tests.
 pyiceoryx2:
     #!/usr/bin/env bash
     set -euo pipefail
     venv=.cache/iox2-venv
-    if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c 'import iceoryx2' 2>/dev/null; then
-        echo "installing iceoryx2 0.10.0 (Python) into $venv (once)"
+    if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c 'import iceoryx2, PIL' 2>/dev/null; then
+        echo "installing iceoryx2 0.10.0 and Pillow 13.0.0 (Python) into $venv (once)"
         python3 -m venv "$venv"
-        "$venv/bin/pip" install --quiet --disable-pip-version-check iceoryx2==0.10.0
+        "$venv/bin/pip" install --quiet --disable-pip-version-check iceoryx2==0.10.0 pillow==13.0.0
     fi
 
 # Test images that registry packages ship (not committed: their licences are not ours), into .cache/fixtures.

@@ -90,8 +90,14 @@ pub const ERROR_TEXT_LEN: usize = 192;
 /// User header of a frame sample. The slice payload holds `width*height*3`
 /// bytes of RGB followed, when `has_depth != 0`, by `width*height` native
 /// endian `u16` depth values.
+///
+/// A public interface since external sources publish it (README "Frames
+/// in", `docs/examples/publish_tum.py`): 296 bytes, 8-byte aligned; a
+/// layout change comes with a new `type_name`, so that an old publisher
+/// cannot open the service.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[type_name("dynslam::FrameHeader.v1")]
 pub struct FrameHeader {
     pub seq: u64,
     /// Timestamp of the source (TUM timestamp in seconds, or file order).
@@ -166,6 +172,10 @@ pub enum RouteKind {
     /// in the background; its result re-prompts the propagator, which carries
     /// it forward to the frame of the moment.
     SegmentBehind = 4,
+    /// The supervisor refused the frame: an outside publisher's frame that
+    /// does not fit the run (README "Frames in"). No masks; SLAM records it
+    /// skipped without reading its pixels.
+    Refuse = 5,
 }
 
 impl RouteKind {
@@ -177,12 +187,17 @@ impl RouteKind {
     pub fn propagates(self) -> bool {
         matches!(self, Self::Propagate | Self::SegmentBehind)
     }
+    /// Whether a mask worker makes masks for a frame of this route.
+    pub fn makes_masks(self) -> bool {
+        self.segments() || self.propagates()
+    }
     pub fn from_u32(v: u32) -> Option<Self> {
         match v {
             1 => Some(Self::Segment),
             2 => Some(Self::Propagate),
             3 => Some(Self::Skip),
             4 => Some(Self::SegmentBehind),
+            5 => Some(Self::Refuse),
             _ => None,
         }
     }
@@ -192,6 +207,7 @@ impl RouteKind {
             Self::Propagate => "propagate",
             Self::Skip => "skip",
             Self::SegmentBehind => "segment-behind",
+            Self::Refuse => "refused",
         }
     }
 }
@@ -537,5 +553,16 @@ mod tests {
         };
         assert_eq!(h.rgb_len(), 24);
         assert_eq!(h.depth_len(), 16);
+    }
+
+    #[test]
+    fn the_public_layouts_are_the_documented_ones() {
+        // README "Frames in" / "Poses out" and the Python examples' ctypes
+        // structures rely on these; a change needs a new type_name.
+        assert_eq!(std::mem::size_of::<FrameHeader>(), 296);
+        assert_eq!(std::mem::align_of::<FrameHeader>(), 8);
+        assert_eq!(std::mem::offset_of!(FrameHeader, stamps), 40);
+        assert_eq!(std::mem::offset_of!(FrameHeader, error), 104);
+        assert_eq!(std::mem::size_of::<Pose>(), 88);
     }
 }

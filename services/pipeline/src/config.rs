@@ -229,6 +229,10 @@ pub enum SourceKind {
     Tum,
     /// A folder of PNG images, played in file-name order, no depth.
     Images,
+    /// Frames published by a program outside the pipeline (a camera driver,
+    /// a ROS 2 bridge) into the run's frame service (README "Frames in"):
+    /// no camera-reader runs, `path` is unused, real time only.
+    External,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -673,6 +677,14 @@ impl PipelineConfig {
                     .into(),
             );
         }
+        if self.source.kind == SourceKind::External && self.run.mode != ClockMode::Realtime {
+            return Err(
+                "key `run.mode`: `source.kind = \"external\"` needs run.mode = \"realtime\" \
+                 (an outside publisher sends at its own rate; lockstep needs the camera-reader to \
+                 wait for each Track and to replay a frame after a restart)"
+                    .into(),
+            );
+        }
         let s = &self.supervisor;
         if s.restart_backoff_initial_ms == 0
             || s.restart_backoff_max_ms < s.restart_backoff_initial_ms
@@ -840,6 +852,21 @@ mod tests {
         let c = PipelineConfig::parse("[services.slam]\nbackend = \"scripted\"\n").unwrap();
         assert_eq!(c.services.slam.backend, "scripted");
         assert_eq!(c.services.segmenter.backend, "yolov8-seg");
+    }
+
+    #[test]
+    fn an_external_source_runs_in_real_time_only() {
+        let err = PipelineConfig::parse("[source]\nkind = \"external\"\n").unwrap_err();
+        assert!(
+            err.contains("run.mode") && err.contains("realtime"),
+            "{err}"
+        );
+        PipelineConfig::parse("[source]\nkind = \"external\"\n[run]\nmode = \"realtime\"\n")
+            .unwrap(); // The shipped example (README "Frames in").
+        let example =
+            PipelineConfig::load(&shipped_path().with_file_name("external.toml")).unwrap();
+        assert_eq!(example.source.kind, SourceKind::External);
+        assert_eq!(example.run.mode, ClockMode::Realtime);
     }
 
     #[test]

@@ -281,7 +281,7 @@ fn track_next_ready(
             .get(&seq)
             .and_then(|r| RouteKind::from_u32(r.kind))
         {
-            Some(RouteKind::Skip) => true,
+            Some(RouteKind::Skip | RouteKind::Refuse) => true,
             Some(_) => st.masks.iter().any(|m| m.user_header().seq == seq),
             None => false,
         }
@@ -366,9 +366,22 @@ fn make_track(
     let seq = header.seq;
     let route = st.routes[&seq];
     let mut stamps = route.stamps;
-    if header.has(frame_flags::BAD_INPUT) {
+    // Refused: the supervisor found an external frame unusable (recorded
+    // why); its pixels are not read.
+    if header.has(frame_flags::BAD_INPUT)
+        || RouteKind::from_u32(route.kind) == Some(RouteKind::Refuse)
+    {
         return Ok((skipped_track(header, stamps), false));
     }
+    // Not refused yet malformed (the supervisor missed a frame?): skipped
+    // with a warning, this process stays up.
+    let frame = match FrameView::new(header, held.sample.payload()) {
+        Ok(frame) => frame,
+        Err(e) => {
+            tracing::warn!(seq, "not tracking a malformed frame: {e:#}");
+            return Ok((skipped_track(header, stamps), false));
+        }
+    };
     let masks_sample = st.masks.iter().find(|m| m.user_header().seq == seq);
     let masks_view = match masks_sample {
         Some(m) if RouteKind::from_u32(route.kind) != Some(RouteKind::Skip) => {
@@ -382,7 +395,6 @@ fn make_track(
     };
     stamps.slam_received_ns = held.received_ns;
     stamps.track_start_ns = now_ns();
-    let frame = FrameView::new(header, held.sample.payload())?;
     let outcome = tracker.track(&TrackInput {
         seq,
         frame: &frame,

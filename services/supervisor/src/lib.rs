@@ -5,6 +5,7 @@
 pub mod ablation;
 pub mod children;
 pub mod default_scene;
+pub mod external;
 pub mod ignore;
 pub mod latency;
 pub mod map_files;

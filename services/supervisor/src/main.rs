@@ -351,27 +351,40 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                 cfg.run.require_masks = true;
             }
             let out = output_dir.unwrap_or_else(|| cfg.run.output_dir.clone());
-            if cfg.source.path.as_os_str().is_empty() {
+            let external = cfg.source.kind == pipeline::config::SourceKind::External;
+            if external && !cfg.source.path.as_os_str().is_empty() {
+                anyhow::bail!(
+                    "dataset folder {} given with source.kind = \"external\" (frames come from an outside publisher): drop one of them",
+                    cfg.source.path.display()
+                );
+            }
+            if external {
+                // Nothing to play or to look up: the publisher brings the frames.
+            } else if cfg.source.path.as_os_str().is_empty() {
                 // No dataset: the embedded default scene (rendered once).
                 cfg.source.kind = pipeline::config::SourceKind::Tum;
                 cfg.source.path = supervisor::default_scene::ensure(&out, &cfg)?;
             }
-            if !cfg.source.path.is_dir() {
-                anyhow::bail!(
-                    "dataset folder {} does not exist or is not a folder",
-                    cfg.source.path.display()
-                );
+            if !external {
+                if !cfg.source.path.is_dir() {
+                    anyhow::bail!(
+                        "dataset folder {} does not exist or is not a folder",
+                        cfg.source.path.display()
+                    );
+                }
+                cfg.source.path = cfg
+                    .source
+                    .path
+                    .canonicalize()
+                    .with_context(|| format!("cannot resolve {}", cfg.source.path.display()))?;
             }
-            cfg.source.path = cfg
-                .source
-                .path
-                .canonicalize()
-                .with_context(|| format!("cannot resolve {}", cfg.source.path.display()))?;
             if let Some(m) = mode {
                 cfg.run.mode = match m {
                     Mode::Lockstep => ClockMode::Lockstep,
                     Mode::Realtime => ClockMode::Realtime,
                 };
+                cfg.validate()
+                    .map_err(|e| anyhow::anyhow!("--mode with the configuration: {e}"))?;
             }
             if no_masks {
                 cfg.routing.no_masks = true;

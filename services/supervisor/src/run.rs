@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Result};
 use pipeline::clock::now_ns;
-use pipeline::config::{ClockMode, PipelineConfig};
+use pipeline::config::{ClockMode, PipelineConfig, SourceKind};
 use pipeline::progress::Progress;
 use pipeline::transport::{
     attach, cleanup_dead_nodes, remove_run_files, run_files, wait, waitset, Transport, Wake,
@@ -26,6 +26,7 @@ use crate::children::{
     describe_exit, is_input_error, process_matches, service_program, signal, spawn,
     RestartDecision, RestartPolicy,
 };
+use crate::external::ExternalStream;
 use crate::latency;
 use crate::mask_record::MaskRecorder;
 use crate::outputs::{write_tum, FrameLog, FrameRow, RecordedFrames};
@@ -61,11 +62,19 @@ pub struct RunSummary {
 #[derive(Debug, Clone, PartialEq)]
 enum SvcState {
     NotStarted,
-    Starting { since: Instant },
+    Starting {
+        since: Instant,
+    },
     Ready,
-    Backoff { until: Instant },
-    Failed { reason: String },
+    Backoff {
+        until: Instant,
+    },
+    Failed {
+        reason: String,
+    },
     Stopped,
+    /// `source.kind = "external"`: an outside program publishes the frames.
+    External,
 }
 
 struct Service {
@@ -94,6 +103,7 @@ impl Service {
             SvcState::Backoff { .. } => "backoff",
             SvcState::Failed { .. } => "failed",
             SvcState::Stopped => "stopped",
+            SvcState::External => "external",
         }
     }
     fn failed(&self) -> bool {
@@ -114,6 +124,9 @@ const REALTIME_FLIGHT_TIMEOUT: Duration = Duration::from_millis(300);
 struct Pending {
     timestamp: f64,
     bad: bool,
+    /// The supervisor found the (external) frame unusable: routed
+    /// [`RouteKind::Refuse`], so SLAM does not read its pixels.
+    refused: bool,
     /// The frame's stamps so far (copied into its Route).
     stamps: shared_types::StageStamps,
     /// Decided (and sent) route; `None` while waiting for the previous Track.
@@ -217,6 +230,9 @@ struct Supervisor {
     /// The newest tracked frames, oldest first: a restarted SLAM resumes
     /// its motion model from them (`--resume-poses`).
     recent_tracked: RecentTracked,
+    /// `source.kind = "external"`: the outside publisher's stream (no
+    /// camera-reader runs).
+    external: Option<ExternalStream>,
 }
 
 impl Supervisor {
@@ -415,9 +431,12 @@ impl Supervisor {
 
     /// Notes a frame (or its replay). Its route is decided by
     /// [`Self::route_ready`]; a replayed frame gets its first route again.
+    /// `problem`: why an external frame cannot be tracked (recorded as bad
+    /// input, routed Skip).
     fn on_frame(
         &mut self,
         h: &FrameHeader,
+        problem: Option<String>,
         routes: &pipeline::transport::Sender<Route, ()>,
     ) -> Result<()> {
         tracing::debug!(seq = h.seq, flags = h.flags, "frame");
@@ -430,20 +449,24 @@ impl Supervisor {
             return Ok(());
         }
         if self.recorded.contains(h.seq) {
+            if let Some(external) = &mut self.external {
+                external.repeated(h);
+            }
             return Ok(());
         }
-        let bad = h.has(frame_flags::BAD_INPUT);
+        let bad = h.has(frame_flags::BAD_INPUT) || problem.is_some();
         let entry = self.pending.entry(h.seq).or_insert_with(|| Pending {
             timestamp: h.source_timestamp,
             bad,
+            refused: problem.is_some(),
             stamps: h.stamps,
             route: None,
             routed_at: None,
             masks_seen: false,
-            note: if bad {
-                format!("bad input: {}", read_error_text(&h.error))
-            } else {
-                String::new()
+            note: match (&problem, bad) {
+                (Some(why), _) => format!("bad input: {why}"),
+                (None, true) => format!("bad input: {}", read_error_text(&h.error)),
+                (None, false) => String::new(),
             },
         });
         entry.stamps = h.stamps;
@@ -492,7 +515,7 @@ impl Supervisor {
                 .pending
                 .values()
                 .filter(|p| {
-                    p.route.is_some_and(|r| r != RouteKind::Skip)
+                    p.route.is_some_and(RouteKind::makes_masks)
                         && p.routed_at
                             .is_some_and(|t| t.elapsed() < REALTIME_FLIGHT_TIMEOUT)
                 })
@@ -512,7 +535,11 @@ impl Supervisor {
                 .pending
                 .get_mut(&seq)
                 .expect("waiting frame is pending");
-            let Some(kind) = self.router.route(seq, p.bad, availability) else {
+            let kind = if p.refused {
+                RouteKind::Refuse
+            } else if let Some(kind) = self.router.route(seq, p.bad, availability) {
+                kind
+            } else {
                 continue; // real time: waits for the first segmenter result
             };
             p.route = Some(kind);
@@ -527,7 +554,7 @@ impl Supervisor {
             }
             let stamps = p.stamps;
             send_route(routes, seq, kind, stamps, false)?;
-            if kind != RouteKind::Skip {
+            if kind.makes_masks() {
                 room = room.saturating_sub(1);
             }
         }
@@ -762,13 +789,18 @@ impl Supervisor {
     /// A stall no service explains fails the run with the same words.
     fn check_stall(&mut self) {
         let timeout = self.config.supervisor.stall_timeout_s;
+        // An external publisher may start whenever it likes.
+        let waiting_for_publisher = self.external.as_ref().is_some_and(|e| e.frames_seen() == 0);
         if timeout == 0
+            || waiting_for_publisher
             || self.complete()
             || self.last_progress.elapsed() < Duration::from_secs(timeout)
-            || !self
-                .services
-                .iter()
-                .all(|s| matches!(s.state, SvcState::Ready | SvcState::Failed { .. }))
+            || !self.services.iter().all(|s| {
+                matches!(
+                    s.state,
+                    SvcState::Ready | SvcState::Failed { .. } | SvcState::External
+                )
+            })
         {
             return;
         }
@@ -776,7 +808,14 @@ impl Supervisor {
         let (kind, what) = match oldest {
             None => (
                 Some(ServiceKind::CameraReader),
-                format!("no frame after {} reached the supervisor", self.next_seq),
+                if self.external.is_some() {
+                    format!(
+                        "the external publisher sent no frame after {} (and no end of stream)",
+                        self.next_seq
+                    )
+                } else {
+                    format!("no frame after {} reached the supervisor", self.next_seq)
+                },
             ),
             Some((&seq, p)) => {
                 let held_by = match p.route {
@@ -785,7 +824,7 @@ impl Supervisor {
                         Some(ServiceKind::Segmenter)
                     }
                     None => None,
-                    Some(RouteKind::Skip) => Some(ServiceKind::Slam),
+                    Some(RouteKind::Skip | RouteKind::Refuse) => Some(ServiceKind::Slam),
                     Some(_) if p.masks_seen => Some(ServiceKind::Slam),
                     Some(RouteKind::Segment) => Some(ServiceKind::Segmenter),
                     Some(_) => Some(ServiceKind::Propagator),
@@ -930,6 +969,7 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
         fatal: None,
         last_progress: Instant::now(),
         recent_tracked: RecentTracked::from_rows(&old_rows),
+        external: (config.source.kind == SourceKind::External).then(ExternalStream::default),
         config,
     };
     sup.next_seq = sup.recorded.first_missing();
@@ -1093,7 +1133,17 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
                 )
             };
             if up(ServiceKind::Slam) && up(ServiceKind::Segmenter) && up(ServiceKind::Propagator) {
-                sup.start(ServiceKind::CameraReader);
+                if sup.external.is_some() {
+                    sup.svc(ServiceKind::CameraReader).state = SvcState::External;
+                    sup.status_dirty = true;
+                    tracing::info!(
+                        "ready for frames from an external publisher: iceoryx2 service {}, file prefix {} (README \"Frames in\")",
+                        sup.names.service(Topic::Frames),
+                        sup.names.file_prefix()
+                    );
+                } else {
+                    sup.start(ServiceKind::CameraReader);
+                }
             }
         }
         for t in tracks.drain()? {
@@ -1130,8 +1180,14 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
         frames.clear_wakeups();
         while let Some(sample) = frames.next_sample()? {
             let header = *sample.user_header();
+            let problem = match &mut sup.external {
+                Some(stream) => stream
+                    .check(&header, sample.payload().len(), &sup.config)
+                    .err(),
+                None => None,
+            };
             drop(sample);
-            sup.on_frame(&header, &routes)?;
+            sup.on_frame(&header, problem, &routes)?;
         }
         sup.route_ready(&routes)?;
         // Services only fail when one dies: what follows from it is decided then.

@@ -5,7 +5,11 @@
 //!   list of [`source::FrameEntry`], validated up front so that a malformed
 //!   list fails at start with the file and line.
 //! - [`decode`]: PNG decoding straight into the destination bytes.
+//! - [`convert`]: a camera's pixel formats (YUYV, MJPEG, Z16) likewise.
+//! - [`v4l2`]: a live V4L2 camera (`source.kind = "v4l2"`).
 
+pub mod convert;
 pub mod decode;
 pub mod frame;
 pub mod source;
+pub mod v4l2;

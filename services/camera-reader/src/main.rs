@@ -4,6 +4,7 @@
 //! the supervisor's replay requests (recovery after a restart).
 //! Real-time: publishes at the source's timestamps (times `speed`), never
 //! waits; consumers take the newest frame and the supervisor counts drops.
+//! A live V4L2 camera (`source.kind = "v4l2"`) is real time at its own rate.
 
 use std::process::ExitCode;
 use std::time::Duration;
@@ -12,9 +13,10 @@ use anyhow::Result;
 use camera_reader::decode::png_size;
 use camera_reader::frame::{decode_frame, header_for, mark_bad, FrameGeometry};
 use camera_reader::source::{configured_frames, FrameEntry};
+use camera_reader::v4l2::{Camera, Captured};
 use clap::Parser;
 use pipeline::clock::now_ns;
-use pipeline::config::ClockMode;
+use pipeline::config::{ClockMode, SourceKind};
 use pipeline::runtime::{run_service, InputError, ServiceArgs, ServiceContext};
 use pipeline::transport::{attach, wait, waitset, Receiver, Sender, Waiter, Wake};
 use shared_types::names::Topic;
@@ -163,6 +165,9 @@ impl Player {
 }
 
 fn run(ctx: ServiceContext, start_seq: u64) -> Result<()> {
+    if ctx.config.source.kind == SourceKind::V4l2 {
+        return live(ctx);
+    }
     let (frames, geometry) = load_source(&ctx)?;
     tracing::info!(
         frames = frames.len(),
@@ -236,6 +241,40 @@ const SOURCE_BACKLOG: u64 = 3;
 /// overflowed), and waiting for its Track would leave every later frame out.
 const BACKLOG_TIMEOUT_NS: u64 = 1_000_000_000;
 
+/// Real time: the frames decoded and published that SLAM has not passed.
+#[derive(Default)]
+struct Backlog {
+    newest_tracked: Option<u64>,
+    /// (seq, when published).
+    decoded: Vec<(u64, u64)>,
+}
+
+impl Backlog {
+    fn note_tracks(&mut self, tracks: &Receiver<Track, ()>) -> Result<()> {
+        if let Some(t) = tracks.drain()?.iter().map(|t| t.seq).max() {
+            self.newest_tracked = self.newest_tracked.max(Some(t));
+        }
+        Ok(())
+    }
+
+    /// Whether the next frame is to be left out: SOURCE_BACKLOG decoded
+    /// frames newer than the newest tracked one (and younger than
+    /// BACKLOG_TIMEOUT_NS) wait. Until SLAM answers at all (models still
+    /// warming up) nothing is left out.
+    fn full(&mut self) -> bool {
+        let now = now_ns();
+        let newest = self.newest_tracked;
+        self.decoded.retain(|&(d, at)| {
+            newest.is_none_or(|t| d > t) && now.saturating_sub(at) < BACKLOG_TIMEOUT_NS
+        });
+        newest.is_some() && self.decoded.len() as u64 >= SOURCE_BACKLOG
+    }
+
+    fn published(&mut self, seq: u64) {
+        self.decoded.push((seq, now_ns()));
+    }
+}
+
 fn realtime(
     player: &Player,
     ws: &Waiter,
@@ -251,9 +290,7 @@ fn realtime(
         .get(start_seq as usize)
         .map(|f| f.timestamp)
         .unwrap_or(0.0);
-    let mut newest_tracked: Option<u64> = None;
-    // Frames decoded and published: (seq, when).
-    let mut decoded: Vec<(u64, u64)> = Vec::new();
+    let mut backlog = Backlog::default();
     for seq in start_seq..total {
         let due = t0 + ((player.frames[seq as usize].timestamp - first_ts) / speed * 1e9) as u64;
         loop {
@@ -266,25 +303,143 @@ fn realtime(
             }
             control.drain()?; // replays do not apply at camera rate
         }
-        if let Some(t) = tracks.drain()?.iter().map(|t| t.seq).max() {
-            newest_tracked = newest_tracked.max(Some(t));
-        }
-        // Decoded frames newer than the newest tracked one (and younger
-        // than BACKLOG_TIMEOUT_NS); until SLAM
-        // answers at all (models still warming up) nothing is left out.
-        let now = now_ns();
-        decoded.retain(|&(d, at)| {
-            newest_tracked.is_none_or(|t| d > t) && now.saturating_sub(at) < BACKLOG_TIMEOUT_NS
-        });
-        if newest_tracked.is_some() && decoded.len() as u64 >= SOURCE_BACKLOG {
+        backlog.note_tracks(tracks)?;
+        if backlog.full() {
             player.publish_dropped(seq)?;
         } else {
             player.publish(seq, false)?;
-            decoded.push((seq, now_ns()));
+            backlog.published(seq);
         }
     }
     player.publish_end()?;
     while wait(ws, Duration::from_secs(1))? != Wake::Terminate {
+        control.drain()?;
+    }
+    Ok(())
+}
+
+/// How long one wait for the camera lasts before the loop looks at its
+/// other inputs (Tracks, a stop request).
+const CAMERA_POLL: Duration = Duration::from_millis(50);
+
+/// Seconds since the Unix epoch of a CLOCK_MONOTONIC instant: a live frame's
+/// timestamp (trajectory.txt), comparable with other programs' clocks.
+fn wall_seconds(monotonic_ns: u64) -> f64 {
+    let since_epoch = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap_or_default()
+        .as_secs_f64();
+    since_epoch - now_ns().saturating_sub(monotonic_ns) as f64 * 1e-9
+}
+
+/// A live V4L2 camera, frame after frame as it sends them, until stopped
+/// (or `source.limit` frames); then the end of the stream.
+fn live(ctx: ServiceContext) -> Result<()> {
+    let src = &ctx.config.source;
+    let mut camera = Camera::open(src).map_err(|e| InputError(e.to_string()))?;
+    let (width, height) = camera.size();
+    let run = &ctx.config.run;
+    if width > run.max_width || height > run.max_height {
+        return Err(InputError(format!(
+            "camera {}: streams {width}x{height}, larger than run.max_width x run.max_height = {}x{} in the pipeline config",
+            src.v4l2.device.display(),
+            run.max_width,
+            run.max_height
+        ))
+        .into());
+    }
+    let geometry = FrameGeometry {
+        width,
+        height,
+        depth_scale: src.depth_scale,
+    };
+    let sender = ctx
+        .transport
+        .slice_sender::<FrameHeader>(Topic::Frames, ctx.config.max_frame_bytes())?;
+    let tracks = ctx.transport.receiver::<Track>(Topic::Tracks)?;
+    let control = ctx.transport.receiver::<Control>(Topic::Control)?;
+    let ws = waitset()?;
+    let _tracks_attached = attach(&ws, &tracks)?;
+    let _control_attached = attach(&ws, &control)?;
+    ctx.announce_ready()?;
+    tracing::info!(
+        "camera {} streaming {width}x{height}{}",
+        src.v4l2.device.display(),
+        if camera.has_depth() {
+            " with depth"
+        } else {
+            ", colour only"
+        }
+    );
+    let header = |seq: u64, arrived: u64, depth: bool| FrameHeader {
+        seq,
+        source_timestamp: wall_seconds(arrived),
+        width,
+        height,
+        pixel_format: shared_types::PixelFormat::Rgb8 as u32,
+        has_depth: depth as u32,
+        depth_scale: geometry.depth_scale,
+        ..Default::default()
+    };
+    let mut backlog = Backlog::default();
+    let mut seq = 0u64;
+    let mut stopped = false;
+    while src.limit == 0 || seq < src.limit {
+        if wait(&ws, Duration::ZERO)? == Wake::Terminate {
+            stopped = true;
+            break;
+        }
+        control.drain()?; // replays do not apply at camera rate
+        backlog.note_tracks(&tracks)?;
+        if backlog.full() {
+            let Some(arrived) = camera.skip(CAMERA_POLL, now_ns)? else {
+                continue;
+            };
+            let mut h = header(seq, arrived, false);
+            h.flags |= frame_flags::DROPPED_AT_SOURCE;
+            h.stamps.capture_ns = arrived;
+            h.stamps.published_ns = now_ns();
+            let mut sample = sender.loan(0)?;
+            *sample.user_header_mut() = h;
+            sender.publish(sample)?;
+            seq += 1;
+            continue;
+        }
+        let mut slot = None;
+        let len = geometry.payload_len(camera.has_depth());
+        let captured = camera.next(CAMERA_POLL, now_ns, || {
+            let sample = slot.insert(sender.loan(len)?);
+            Ok(sample.payload_mut())
+        })?;
+        let (Some((arrived, captured)), Some(mut sample)) = (captured, slot) else {
+            continue;
+        };
+        let mut h = match captured {
+            Captured::Frame { depth } => header(seq, arrived, depth),
+            Captured::Bad(why) => {
+                tracing::error!(seq, "bad camera frame: {why}");
+                let mut h = header(seq, arrived, false);
+                shared_types::write_error_text(&mut h.error, &why);
+                h.flags |= frame_flags::BAD_INPUT;
+                h
+            }
+        };
+        h.stamps.capture_ns = arrived;
+        h.stamps.published_ns = now_ns();
+        *sample.user_header_mut() = h;
+        sender.publish(sample)?;
+        backlog.published(seq);
+        seq += 1;
+    }
+    let mut end = sender.loan(0)?;
+    *end.user_header_mut() = FrameHeader {
+        seq,
+        flags: frame_flags::END_OF_STREAM,
+        ..Default::default()
+    };
+    sender.publish(end)?;
+    tracing::info!(frames = seq, "camera stream ended");
+    while !stopped && wait(&ws, Duration::from_secs(1))? != Wake::Terminate {
         control.drain()?;
     }
     Ok(())

@@ -32,8 +32,8 @@ pub enum SourceError {
     },
     #[error("{path}: {message}")]
     Empty { path: PathBuf, message: String },
-    #[error("source.kind = \"external\": frames come from a program outside the pipeline (README \"Frames in\"), there is no frame list to play")]
-    External,
+    #[error("source.kind = \"{0}\" is live (a camera or an outside publisher): there is no frame list to play")]
+    Live(&'static str),
 }
 
 /// A timestamped file list (`rgb.txt`, `depth.txt`).
@@ -180,7 +180,8 @@ pub fn configured_frames(
     let mut frames = match src.kind {
         pipeline::config::SourceKind::Tum => tum_folder(&src.path, src.max_time_diff),
         pipeline::config::SourceKind::Images => image_folder(&src.path, src.image_period),
-        pipeline::config::SourceKind::External => Err(SourceError::External),
+        pipeline::config::SourceKind::External => Err(SourceError::Live("external")),
+        pipeline::config::SourceKind::V4l2 => Err(SourceError::Live("v4l2")),
     }?;
     if src.limit > 0 {
         frames.truncate(src.limit as usize);

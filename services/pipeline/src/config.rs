@@ -233,6 +233,40 @@ pub enum SourceKind {
     /// a ROS 2 bridge) into the run's frame service (README "Frames in"):
     /// no camera-reader runs, `path` is unused, real time only.
     External,
+    /// A live V4L2 camera (`[source.v4l2]`), real time only.
+    V4l2,
+}
+
+/// A V4L2 camera's settings (`source.kind = "v4l2"`).
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct V4l2Config {
+    /// The colour device node.
+    pub device: PathBuf,
+    /// Requested size; the driver may pick the nearest it has (logged).
+    pub width: u32,
+    pub height: u32,
+    /// Requested frame rate (frames per second).
+    pub fps: u32,
+    /// "auto" (YUYV, else MJPEG), "yuyv" or "mjpeg".
+    pub pixel_format: String,
+    /// A depth node (16-bit `Z16`, registered to the colour image) paired
+    /// with each colour frame by arrival time within `source.max_time_diff`;
+    /// empty: none (needs services.slam.sensor = "monocular").
+    pub depth_device: PathBuf,
+}
+
+impl Default for V4l2Config {
+    fn default() -> Self {
+        Self {
+            device: PathBuf::from("/dev/video0"),
+            width: 640,
+            height: 480,
+            fps: 30,
+            pixel_format: "auto".into(),
+            depth_device: PathBuf::new(),
+        }
+    }
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -252,6 +286,8 @@ pub struct SourceConfig {
     /// Play the sequence this many times in a row (soaks and kill storms):
     /// each pass's timestamps go on one frame period after the last pass's.
     pub repeat: u32,
+    /// `kind = "v4l2"`: the camera.
+    pub v4l2: V4l2Config,
 }
 
 impl Default for SourceConfig {
@@ -264,6 +300,7 @@ impl Default for SourceConfig {
             limit: 0,
             image_period: 1.0 / 30.0,
             repeat: 1,
+            v4l2: V4l2Config::default(),
         }
     }
 }
@@ -677,6 +714,51 @@ impl PipelineConfig {
                     .into(),
             );
         }
+        if self.source.kind == SourceKind::V4l2 {
+            let v = &self.source.v4l2;
+            if self.run.mode != ClockMode::Realtime {
+                return Err(
+                    "key `run.mode`: `source.kind = \"v4l2\"` needs run.mode = \"realtime\" (a \
+                     camera does not wait for the SLAM, nor replay a frame after a restart)"
+                        .into(),
+                );
+            }
+            if !["auto", "yuyv", "mjpeg"].contains(&v.pixel_format.as_str()) {
+                return Err(format!(
+                    "key `source.v4l2.pixel_format`: \"{}\" is not one of \"auto\", \"yuyv\", \"mjpeg\"",
+                    v.pixel_format
+                ));
+            }
+            if v.width == 0
+                || v.height == 0
+                || v.width > self.run.max_width
+                || v.height > self.run.max_height
+            {
+                return Err(format!(
+                    "key `source.v4l2.width`: {}x{} must be within run.max_width x run.max_height = {}x{}",
+                    v.width, v.height, self.run.max_width, self.run.max_height
+                ));
+            }
+            if v.fps == 0 || v.fps > 240 {
+                return Err(format!("key `source.v4l2.fps`: {} must be 1 to 240", v.fps));
+            }
+            if v.device.as_os_str().is_empty() {
+                return Err(
+                    "key `source.v4l2.device`: empty (a device node such as /dev/video0)".into(),
+                );
+            }
+            if v.depth_device.as_os_str().is_empty()
+                && self.services.slam.backend == "orb-rgbd"
+                && !self.services.slam.is_monocular()
+            {
+                return Err(
+                    "key `services.slam.sensor`: \"rgbd\" needs depth, and `source.v4l2.depth_device` \
+                     is empty: set services.slam.sensor = \"monocular\" for a colour camera, or name \
+                     the camera's depth node"
+                        .into(),
+                );
+            }
+        }
         if self.source.kind == SourceKind::External && self.run.mode != ClockMode::Realtime {
             return Err(
                 "key `run.mode`: `source.kind = \"external\"` needs run.mode = \"realtime\" \
@@ -852,6 +934,39 @@ mod tests {
         let c = PipelineConfig::parse("[services.slam]\nbackend = \"scripted\"\n").unwrap();
         assert_eq!(c.services.slam.backend, "scripted");
         assert_eq!(c.services.segmenter.backend, "yolov8-seg");
+    }
+
+    #[test]
+    fn a_v4l2_camera_is_checked_key_by_key() {
+        let cam = |extra: &str| {
+            PipelineConfig::parse(&format!(
+                "[run]\nmode = \"realtime\"\n[source]\nkind = \"v4l2\"\n[source.v4l2]\ndepth_device = \"/dev/video2\"\n{extra}"
+            ))
+        };
+        let c = cam("").unwrap();
+        assert_eq!(c.source.v4l2.device, Path::new("/dev/video0"));
+        assert_eq!((c.source.v4l2.width, c.source.v4l2.fps), (640, 30));
+        let err = |extra: &str| cam(extra).unwrap_err();
+        assert!(err("pixel_format = \"nv12\"").contains("source.v4l2.pixel_format"));
+        assert!(err("width = 1920\nheight = 1080").contains("run.max_width"));
+        assert!(err("fps = 0").contains("source.v4l2.fps"));
+        assert!(err("device = \"\"").contains("source.v4l2.device"));
+        // No depth node: the RGB-D SLAM says what to set.
+        let e = PipelineConfig::parse("[run]\nmode = \"realtime\"\n[source]\nkind = \"v4l2\"\n")
+            .unwrap_err();
+        assert!(
+            e.contains("services.slam.sensor") && e.contains("monocular"),
+            "{e}"
+        );
+        PipelineConfig::parse(
+            "[run]\nmode = \"realtime\"\n[source]\nkind = \"v4l2\"\n[services.slam]\nsensor = \"monocular\"\n",
+        )
+        .unwrap();
+        let e = PipelineConfig::parse(
+            "[source]\nkind = \"v4l2\"\n[source.v4l2]\ndepth_device = \"/dev/video2\"\n",
+        )
+        .unwrap_err();
+        assert!(e.contains("run.mode"), "{e}");
     }
 
     #[test]

@@ -351,21 +351,24 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                 cfg.run.require_masks = true;
             }
             let out = output_dir.unwrap_or_else(|| cfg.run.output_dir.clone());
-            let external = cfg.source.kind == pipeline::config::SourceKind::External;
-            if external && !cfg.source.path.as_os_str().is_empty() {
+            // Live sources: frames from a camera or an outside publisher.
+            let live = match cfg.source.kind {
+                pipeline::config::SourceKind::External => Some("external"),
+                pipeline::config::SourceKind::V4l2 => Some("v4l2"),
+                _ => None,
+            };
+            if let (Some(kind), false) = (live, cfg.source.path.as_os_str().is_empty()) {
                 anyhow::bail!(
-                    "dataset folder {} given with source.kind = \"external\" (frames come from an outside publisher): drop one of them",
+                    "dataset folder {} given with source.kind = \"{kind}\" (frames come live): drop one of them",
                     cfg.source.path.display()
                 );
             }
-            if external {
-                // Nothing to play or to look up: the publisher brings the frames.
-            } else if cfg.source.path.as_os_str().is_empty() {
+            if live.is_none() && cfg.source.path.as_os_str().is_empty() {
                 // No dataset: the embedded default scene (rendered once).
                 cfg.source.kind = pipeline::config::SourceKind::Tum;
                 cfg.source.path = supervisor::default_scene::ensure(&out, &cfg)?;
             }
-            if !external {
+            if live.is_none() {
                 if !cfg.source.path.is_dir() {
                     anyhow::bail!(
                         "dataset folder {} does not exist or is not a folder",

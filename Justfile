@@ -203,6 +203,7 @@ eval-dynamic dataset="" *args="": build setup
     fi
     ./target/release/dynslam ablate "$seq" {{args}}
 
-# Transport benchmark: iceoryx2 zero-copy vs a Unix-socket copy (writes bench-results/transport.json).
+# Transport benchmarks: iceoryx2 zero-copy vs a Unix-socket copy, and wake-up latency of a WaitSet vs a semaphore event (writes bench-results/transport.json, wakeup.json).
 bench: build
     ./target/release/transport-bench --out bench-results/transport.json
+    ./target/release/wakeup-bench --out bench-results/wakeup.json

@@ -6,23 +6,13 @@
 mod common;
 use common::*;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use pipeline::transport::Transport;
 use shared_types::names::{RunNames, Topic};
 use shared_types::{frame_flags, FrameHeader};
-
-fn python() -> PathBuf {
-    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join(".cache/iox2-venv/bin/python");
-    assert!(
-        venv.is_file(),
-        "{} missing: `just pyiceoryx2` (part of `just test`) installs iceoryx2's Python binding",
-        venv.display()
-    );
-    venv
-}
 
 const EXTERNAL: &str = "[run]\nmode = \"realtime\"\n[source]\nkind = \"external\"\n";
 
@@ -74,7 +64,7 @@ fn the_python_publisher_feeds_a_live_run_that_tracks_its_frames() {
     let config = write_config(&dir, &format!("{EXTERNAL}{NO_MASK_MODELS}"));
     let run = start_run(&config, &dir.join("runs"), &run_id);
     // Half speed: a busy 2-core CI machine still tracks most of them.
-    let publisher = Command::new(python())
+    let publisher = Command::new(iox2_python())
         .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/examples/publish_tum.py"))
         .args(["--run-id", &run_id, "--wait", "120", "--speed", "0.5"])
         .args(["--limit", &frames.to_string(), "--folder"])

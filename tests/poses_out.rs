@@ -4,18 +4,8 @@
 mod common;
 use common::*;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Stdio};
-
-fn python() -> PathBuf {
-    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join(".cache/iox2-venv/bin/python");
-    assert!(
-        venv.is_file(),
-        "{} missing: `just pyiceoryx2` (part of `just test`) installs iceoryx2's Python binding",
-        venv.display()
-    );
-    venv
-}
 
 #[test]
 fn the_python_example_receives_every_tracked_pose_of_a_live_run() {
@@ -23,7 +13,7 @@ fn the_python_example_receives_every_tracked_pose_of_a_live_run() {
     let run_id = format!("poses{}", std::process::id());
     let received = dir.join("received.txt");
     // The reader starts first and waits for the run to create the stream.
-    let reader = Command::new(python())
+    let reader = Command::new(iox2_python())
         .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/examples/poses.py"))
         .args(["--run-id", &run_id, "--wait", "60", "--idle", "5", "--out"])
         .arg(&received)

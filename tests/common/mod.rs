@@ -57,6 +57,18 @@ pub fn shared_tum() -> PathBuf {
         .join("../shared/data/tum/rgbd_dataset_freiburg1_rpy_first300")
 }
 
+/// The Python of `.cache/iox2-venv` (iceoryx2's binding and Pillow), which
+/// `just pyiceoryx2` (part of `just test`) makes.
+pub fn iox2_python() -> PathBuf {
+    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join(".cache/iox2-venv/bin/python");
+    assert!(
+        venv.is_file(),
+        "{} missing: `just pyiceoryx2` (part of `just test`) installs iceoryx2's Python binding",
+        venv.display()
+    );
+    venv
+}
+
 /// A fresh scratch folder for one test.
 pub fn scratch(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("dynslam-it-{name}-{}", std::process::id()));

@@ -24,6 +24,8 @@ pub enum ConvertError {
         height: u32,
         stride: usize,
     },
+    #[error("{width}x{height}: an odd width for 4:2:2, or a frame buffer too small for it")]
+    Odd { width: u32, height: u32 },
     #[error("MJPEG frame does not decode: {0}")]
     Jpeg(String),
     #[error("MJPEG frame is {got_w}x{got_h}, the stream was negotiated at {width}x{height}")]
@@ -33,6 +35,31 @@ pub enum ConvertError {
         width: u32,
         height: u32,
     },
+}
+
+/// A 2-bytes-per-pixel buffer's row length and stride (`bytesperline`,
+/// at least a row), checked to hold `height` rows.
+fn packed_rows(
+    format: &'static str,
+    src: &[u8],
+    width: u32,
+    height: u32,
+    stride: usize,
+) -> Result<(usize, usize), ConvertError> {
+    let row = width as usize * 2;
+    let stride = stride.max(row);
+    let need = stride * (height as usize).saturating_sub(1) + row;
+    if src.len() < need {
+        return Err(ConvertError::Short {
+            format,
+            got: src.len(),
+            need,
+            width,
+            height,
+            stride,
+        });
+    }
+    Ok((row, stride))
 }
 
 fn clamp_u8(v: i32) -> u8 {
@@ -60,18 +87,9 @@ pub fn yuyv_to_rgb(
     dst: &mut [u8],
 ) -> Result<(), ConvertError> {
     let (w, h) = (width as usize, height as usize);
-    let row = w * 2;
-    let stride = stride.max(row);
-    let need = stride * (h.saturating_sub(1)) + row;
-    if src.len() < need || w % 2 != 0 || dst.len() < w * h * 3 {
-        return Err(ConvertError::Short {
-            format: "YUYV",
-            got: src.len(),
-            need,
-            width,
-            height,
-            stride,
-        });
+    let (row, stride) = packed_rows("YUYV", src, width, height, stride)?;
+    if w % 2 != 0 || dst.len() < w * h * 3 {
+        return Err(ConvertError::Odd { width, height });
     }
     for (y, out) in dst.chunks_exact_mut(w * 3).take(h).enumerate() {
         let line = &src[y * stride..y * stride + row];
@@ -220,18 +238,9 @@ pub fn z16_to_depth(
     dst: &mut [u8],
 ) -> Result<(), ConvertError> {
     let (w, h) = (width as usize, height as usize);
-    let row = w * 2;
-    let stride = stride.max(row);
-    let need = stride * (h.saturating_sub(1)) + row;
-    if src.len() < need || dst.len() < w * h * 2 {
-        return Err(ConvertError::Short {
-            format: "Z16",
-            got: src.len(),
-            need,
-            width,
-            height,
-            stride,
-        });
+    let (row, stride) = packed_rows("Z16", src, width, height, stride)?;
+    if dst.len() < w * h * 2 {
+        return Err(ConvertError::Odd { width, height });
     }
     for (y, out) in dst.chunks_exact_mut(row).take(h).enumerate() {
         let line = &src[y * stride..y * stride + row];

@@ -164,6 +164,23 @@ impl Player {
     }
 }
 
+/// The reader's ports: frames out; Tracks (real-time backlog, lockstep
+/// pace) and the supervisor's replay requests in.
+type Ports = (
+    Sender<[u8], FrameHeader>,
+    Receiver<Track, ()>,
+    Receiver<Control, ()>,
+);
+
+fn ports(ctx: &ServiceContext) -> Result<Ports> {
+    Ok((
+        ctx.transport
+            .slice_sender::<FrameHeader>(Topic::Frames, ctx.config.max_frame_bytes())?,
+        ctx.transport.receiver::<Track>(Topic::Tracks)?,
+        ctx.transport.receiver::<Control>(Topic::Control)?,
+    ))
+}
+
 fn run(ctx: ServiceContext, start_seq: u64) -> Result<()> {
     if ctx.config.source.kind == SourceKind::V4l2 {
         return live(ctx);
@@ -176,15 +193,12 @@ fn run(ctx: ServiceContext, start_seq: u64) -> Result<()> {
         "source {} ready",
         ctx.config.source.path.display()
     );
+    let (sender, tracks, control) = ports(&ctx)?;
     let player = Player {
         frames,
         geometry,
-        sender: ctx
-            .transport
-            .slice_sender::<FrameHeader>(Topic::Frames, ctx.config.max_frame_bytes())?,
+        sender,
     };
-    let tracks = ctx.transport.receiver::<Track>(Topic::Tracks)?;
-    let control = ctx.transport.receiver::<Control>(Topic::Control)?;
     let ws = waitset()?;
     let _tracks_attached = attach(&ws, &tracks)?;
     let _control_attached = attach(&ws, &control)?;
@@ -353,11 +367,7 @@ fn live(ctx: ServiceContext) -> Result<()> {
         height,
         depth_scale: src.depth_scale,
     };
-    let sender = ctx
-        .transport
-        .slice_sender::<FrameHeader>(Topic::Frames, ctx.config.max_frame_bytes())?;
-    let tracks = ctx.transport.receiver::<Track>(Topic::Tracks)?;
-    let control = ctx.transport.receiver::<Control>(Topic::Control)?;
+    let (sender, tracks, control) = ports(&ctx)?;
     let ws = waitset()?;
     let _tracks_attached = attach(&ws, &tracks)?;
     let _control_attached = attach(&ws, &control)?;

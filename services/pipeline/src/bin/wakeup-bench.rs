@@ -159,22 +159,7 @@ fn main() -> Result<()> {
 /// Sends the series to a receiver process of `way`; its (p50, p99) in us.
 fn drive<S: iceoryx2::service::Service + Debug>(way: &str, messages: usize) -> Result<(f64, f64)> {
     let prefix = format!("dsl_wakeup{}_{way}_", std::process::id());
-    let node = NodeBuilder::new()
-        .config(&config(&prefix)?)
-        .create::<S>()
-        .map_err(|e| anyhow!("node: {e:?}"))?;
-    let name = ServiceName::new(SERVICE).map_err(|e| anyhow!("{e:?}"))?;
-    let pubsub = node
-        .service_builder(&name)
-        .publish_subscribe::<u64>()
-        .subscriber_max_buffer_size(QUEUE)
-        .open_or_create()
-        .map_err(|e| anyhow!("publish-subscribe service: {e:?}"))?;
-    let event = node
-        .service_builder(&name)
-        .event()
-        .open_or_create()
-        .map_err(|e| anyhow!("event service: {e:?}"))?;
+    let (_node, pubsub, event) = services::<S>(&prefix)?;
     let publisher = pubsub
         .publisher_builder()
         .create()
@@ -227,7 +212,14 @@ struct Ports<S: iceoryx2::service::Service> {
     listener: iceoryx2::port::listener::Listener<S>,
 }
 
-fn open_ports<S: iceoryx2::service::Service + Debug>(prefix: &str) -> Result<Ports<S>> {
+type Services<S> = (
+    Node<S>,
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<S, u64, ()>,
+    iceoryx2::service::port_factory::event::PortFactory<S>,
+);
+
+/// The bench's node, its stamp service and its event service.
+fn services<S: iceoryx2::service::Service + Debug>(prefix: &str) -> Result<Services<S>> {
     let node = NodeBuilder::new()
         .config(&config(prefix)?)
         .create::<S>()
@@ -244,6 +236,11 @@ fn open_ports<S: iceoryx2::service::Service + Debug>(prefix: &str) -> Result<Por
         .event()
         .open_or_create()
         .map_err(|e| anyhow!("event service: {e:?}"))?;
+    Ok((node, pubsub, event))
+}
+
+fn open_ports<S: iceoryx2::service::Service + Debug>(prefix: &str) -> Result<Ports<S>> {
+    let (node, pubsub, event) = services::<S>(prefix)?;
     let subscriber = pubsub
         .subscriber_builder()
         .buffer_size(QUEUE)

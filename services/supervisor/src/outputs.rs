@@ -26,7 +26,8 @@ pub struct FrameRow {
     /// ok, lost, relocalised, not_initialised, skipped, or dropped (real-time
     /// mode: a newer frame was tracked first).
     pub state: String,
-    /// segment, propagate, skip, or none (never routed).
+    /// segment, propagate, segment-behind, skip, refused (an external frame
+    /// that does not fit the run), or none (never routed).
     pub route: String,
     /// segmenter, propagator, none.
     pub mask_source: String,

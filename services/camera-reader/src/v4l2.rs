@@ -95,6 +95,62 @@ pub fn choose_format(offered: &[PixelFormat], wanted: &str) -> Result<PixelForma
         })
 }
 
+/// A node opened as a camera (capture with streaming) and the format
+/// `choose` picks among what it offers.
+fn open_device(
+    path: &Path,
+    key: &'static str,
+    choose: impl Fn(&[PixelFormat]) -> Result<PixelFormat, String>,
+) -> Result<(Device, PixelFormat), CameraError> {
+    let device = Device::open(path).map_err(|e| classify(path, key, "open", e))?;
+    let caps = device
+        .capabilities()
+        .map_err(|e| classify(path, key, "query capabilities", e))?
+        .device_capabilities();
+    if !caps.contains(CapabilityFlags::VIDEO_CAPTURE) || !caps.contains(CapabilityFlags::STREAMING)
+    {
+        return Err(CameraError::NotACamera {
+            path: path.into(),
+            why: format!("capabilities {caps:?} lack video capture with streaming"),
+        });
+    }
+    let mut offered = Vec::new();
+    for f in device.formats(BufType::VIDEO_CAPTURE) {
+        let f = f.map_err(|e| classify(path, key, "list formats", e))?;
+        offered.push(f.pixel_format());
+    }
+    let format = choose(&offered).map_err(|why| CameraError::Format {
+        path: path.into(),
+        why,
+    })?;
+    Ok((device, format))
+}
+
+/// The depth node's format: Z16 or an error listing what it offers.
+fn choose_depth(offered: &[PixelFormat]) -> Result<PixelFormat, String> {
+    offered.contains(&Z16).then_some(Z16).ok_or_else(|| {
+        let list: Vec<String> = offered.iter().map(|f| f.to_string()).collect();
+        format!(
+            "offers {} and a depth node must offer Z16 (16-bit depth)",
+            list.join(", ")
+        )
+    })
+}
+
+/// Checks, before any process of the run starts, that the configured
+/// nodes open as cameras with a format the reader takes (no streaming):
+/// a wrong device fails the run at once, not after the models load.
+pub fn probe(src: &SourceConfig) -> Result<(), CameraError> {
+    let v = &src.v4l2;
+    open_device(&v.device, "device", |offered| {
+        choose_format(offered, &v.pixel_format)
+    })?;
+    if !v.depth_device.as_os_str().is_empty() {
+        open_device(&v.depth_device, "depth_device", choose_depth)?;
+    }
+    Ok(())
+}
+
 /// One opened, streaming node.
 struct Node {
     path: PathBuf,
@@ -113,28 +169,7 @@ impl Node {
         size: (u32, u32),
         fps: u32,
     ) -> Result<Self, CameraError> {
-        let device = Device::open(path).map_err(|e| classify(path, key, "open", e))?;
-        let caps = device
-            .capabilities()
-            .map_err(|e| classify(path, key, "query capabilities", e))?
-            .device_capabilities();
-        if !caps.contains(CapabilityFlags::VIDEO_CAPTURE)
-            || !caps.contains(CapabilityFlags::STREAMING)
-        {
-            return Err(CameraError::NotACamera {
-                path: path.into(),
-                why: format!("capabilities {caps:?} lack video capture with streaming"),
-            });
-        }
-        let mut offered = Vec::new();
-        for f in device.formats(BufType::VIDEO_CAPTURE) {
-            let f = f.map_err(|e| classify(path, key, "list formats", e))?;
-            offered.push(f.pixel_format());
-        }
-        let format = choose(&offered).map_err(|why| CameraError::Format {
-            path: path.into(),
-            why,
-        })?;
+        let (device, format) = open_device(path, key, choose)?;
         let capture = device
             .video_capture(PixFormat::new(size.0, size.1, format))
             .map_err(|e| classify(path, key, "set the format", e))?;
@@ -237,15 +272,7 @@ impl Camera {
             let node = Node::open(
                 &v.depth_device,
                 "depth_device",
-                |offered| {
-                    offered.contains(&Z16).then_some(Z16).ok_or_else(|| {
-                        let list: Vec<String> = offered.iter().map(|f| f.to_string()).collect();
-                        format!(
-                            "offers {} and a depth node must offer Z16 (16-bit depth)",
-                            list.join(", ")
-                        )
-                    })
-                },
+                choose_depth,
                 (colour.width, colour.height),
                 v.fps,
             )?;

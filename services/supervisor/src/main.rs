@@ -363,6 +363,9 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                     cfg.source.path.display()
                 );
             }
+            if cfg.source.kind == pipeline::config::SourceKind::V4l2 {
+                camera_reader::v4l2::probe(&cfg.source)?;
+            }
             if live.is_none() && cfg.source.path.as_os_str().is_empty() {
                 // No dataset: the embedded default scene (rendered once).
                 cfg.source.kind = pipeline::config::SourceKind::Tum;

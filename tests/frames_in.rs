@@ -203,3 +203,54 @@ fn bad_external_frames_are_recorded_with_their_reason() {
     assert_no_shm_left(&run_id);
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A publisher killed mid-stream (no end of stream): the run does not hang.
+/// After `supervisor.stall_timeout_s` it fails naming the publisher, with
+/// the frames it had recorded and the map written, nothing left in shared
+/// memory.
+#[test]
+fn a_publisher_killed_mid_stream_fails_the_run_with_its_frames_kept() {
+    let dir = scratch("frames-in-killed");
+    let run_id = format!("framesdead{}", std::process::id());
+    let config = write_config(
+        &dir,
+        &format!("{EXTERNAL}[supervisor]\nstall_timeout_s = 3\n{NO_MASK_MODELS}"),
+    );
+    let run = start_run(&config, &dir.join("runs"), &run_id);
+    let run_dir = dir.join("runs").join(&run_id);
+    let mut publisher = Command::new(iox2_python())
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/examples/publish_tum.py"))
+        .args(["--run-id", &run_id, "--wait", "120", "--folder"])
+        .arg(shared_tum())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start the Python publisher");
+    let deadline = Instant::now() + Duration::from_secs(120);
+    while std::fs::read_to_string(run_dir.join("status.json"))
+        .ok()
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+        .and_then(|s| s["frames_done"].as_u64())
+        .unwrap_or(0)
+        < 10
+    {
+        assert!(Instant::now() < deadline, "no frames recorded");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // SIGKILL: no end of stream, no clean-up of its own.
+    publisher.kill().unwrap();
+    publisher.wait().unwrap();
+    let out = run.wait_with_output().unwrap();
+    let log = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{log}");
+    assert!(
+        log.contains("the external publisher sent no frame after"),
+        "{log}"
+    );
+    let rows = read_rows(&run_dir);
+    assert!(rows.len() >= 10, "{} rows", rows.len());
+    assert!(run_dir.join("trajectory.txt").is_file());
+    assert!(run_dir.join("map.ply").is_file());
+    assert_no_shm_left(&run_id);
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -21,6 +21,7 @@ message is the end of the stream, which ends the run.
 import argparse
 import ctypes
 import os
+import re
 import sys
 import time
 
@@ -156,6 +157,8 @@ def main() -> int:
     ap.add_argument("--wait", type=float, default=60.0, help="seconds to wait for the run to be ready")
     ap.add_argument("--consumers", type=int, default=4, help="subscribers the run has when ready (supervisor, SLAM, segmenter, propagator)")
     args = ap.parse_args()
+    if not re.fullmatch(r"[A-Za-z0-9-]{1,32}", args.run_id):
+        sys.exit(f"error: --run-id '{args.run_id}': a run id is 1 to 32 ASCII letters, digits or '-'")
     if args.speed <= 0:
         sys.exit(f"error: --speed {args.speed} must be > 0")
 

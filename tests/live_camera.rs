@@ -65,3 +65,29 @@ fn a_node_that_is_not_a_camera_fails_the_run_saying_so() {
     );
     assert_no_shm_left(&run.run_id);
 }
+
+/// `dynslam cameras` lists the capture nodes, or says there are none (this
+/// machine has none; a camera's line is formatted like the ones in the
+/// README).
+#[test]
+fn the_cameras_command_lists_what_is_there() {
+    let out = std::process::Command::new(dynslam())
+        .arg("cameras")
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let video_nodes = std::fs::read_dir("/dev")
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .any(|e| e.file_name().to_string_lossy().starts_with("video"));
+    if video_nodes {
+        assert!(!text.trim().is_empty());
+    } else {
+        assert!(text.contains("no V4L2 capture device under /dev"), "{text}");
+    }
+}

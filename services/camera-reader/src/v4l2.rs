@@ -151,6 +151,66 @@ pub fn probe(src: &SourceConfig) -> Result<(), CameraError> {
     Ok(())
 }
 
+/// A V4L2 capture node as `dynslam cameras` lists it.
+#[derive(Debug)]
+pub struct CameraInfo {
+    pub path: PathBuf,
+    /// The driver's name for the device ("HD Pro Webcam C920").
+    pub card: String,
+    /// fourcc codes it offers for capture, in its order.
+    pub formats: Vec<String>,
+    /// What `source.v4l2` can read from it: "colour (YUYV)", "depth (Z16)", or
+    /// why neither.
+    pub use_as: String,
+}
+
+/// The capture nodes under /dev (`video*`), in name order; nodes that are
+/// not cameras (metadata, output, codecs) are left out.
+pub fn list_cameras() -> io::Result<Vec<CameraInfo>> {
+    let mut nodes: Vec<PathBuf> = std::fs::read_dir("/dev")?
+        .filter_map(|e| e.ok())
+        .map(|e| e.path())
+        .filter(|p| {
+            p.file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| n.starts_with("video"))
+        })
+        .collect();
+    nodes.sort();
+    let mut found = Vec::new();
+    for path in nodes {
+        let Ok(device) = Device::open(&path) else {
+            continue;
+        };
+        let Ok(caps) = device.capabilities() else {
+            continue;
+        };
+        if !caps
+            .device_capabilities()
+            .contains(CapabilityFlags::VIDEO_CAPTURE)
+        {
+            continue;
+        }
+        let offered: Vec<PixelFormat> = device
+            .formats(BufType::VIDEO_CAPTURE)
+            .filter_map(|f| f.ok())
+            .map(|f| f.pixel_format())
+            .collect();
+        let use_as = match (choose_format(&offered, "auto"), choose_depth(&offered)) {
+            (Ok(f), _) => format!("colour ({f}): source.v4l2.device"),
+            (_, Ok(_)) => "depth (Z16): source.v4l2.depth_device".to_string(),
+            (Err(_), Err(_)) => "not readable (no YUYV, MJPG or Z16)".to_string(),
+        };
+        found.push(CameraInfo {
+            card: caps.card().to_string(),
+            formats: offered.iter().map(|f| f.to_string()).collect(),
+            use_as,
+            path,
+        });
+    }
+    Ok(found)
+}
+
 /// One opened, streaming node.
 struct Node {
     path: PathBuf,

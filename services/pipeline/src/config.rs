@@ -977,7 +977,11 @@ mod tests {
             "{err}"
         );
         PipelineConfig::parse("[source]\nkind = \"external\"\n[run]\nmode = \"realtime\"\n")
-            .unwrap(); // The shipped example (README "Frames in").
+            .unwrap();
+        // The shipped examples (README "Frames in", "Live camera").
+        let camera = PipelineConfig::load(&shipped_path().with_file_name("v4l2.toml")).unwrap();
+        assert_eq!(camera.source.kind, SourceKind::V4l2);
+        assert!(camera.services.slam.is_monocular());
         let example =
             PipelineConfig::load(&shipped_path().with_file_name("external.toml")).unwrap();
         assert_eq!(example.source.kind, SourceKind::External);

@@ -229,6 +229,9 @@ enum Command {
         #[arg(long)]
         config: Option<PathBuf>,
     },
+    /// The V4L2 cameras of this machine (`/dev/video*`): name, formats, and
+    /// which `source.v4l2` key takes each (README "Live camera").
+    Cameras,
     /// The bag-of-words vocabulary of place recognition (relocalisation):
     /// train one, or describe a file.
     Vocab {
@@ -577,6 +580,27 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                 },
             };
             synth(&input, &output, &options, limit, config.as_deref()).map(|()| ExitCode::SUCCESS)
+        }
+        Command::Cameras => {
+            let cameras =
+                camera_reader::v4l2::list_cameras().context("cannot list /dev for V4L2 cameras")?;
+            if cameras.is_empty() {
+                println!("no V4L2 capture device under /dev (is a camera plugged in? is /dev/video* visible here, e.g. inside a container?)");
+            }
+            for c in cameras {
+                println!(
+                    "{}  {}  formats {}  -> {}",
+                    c.path.display(),
+                    c.card,
+                    if c.formats.is_empty() {
+                        "none".to_string()
+                    } else {
+                        c.formats.join(" ")
+                    },
+                    c.use_as
+                );
+            }
+            Ok(ExitCode::SUCCESS)
         }
         Command::Vocab { action } => {
             match action {

@@ -56,8 +56,8 @@ pub fn decode_frame(
 }
 
 /// Marks a header as a bad-input frame with the reason; its payload is empty.
-pub fn mark_bad(header: &mut FrameHeader, error: &DecodeError) {
+pub fn mark_bad(header: &mut FrameHeader, why: &impl std::fmt::Display) {
     header.flags |= frame_flags::BAD_INPUT;
     header.has_depth = 0;
-    write_error_text(&mut header.error, &error.to_string());
+    write_error_text(&mut header.error, &why.to_string());
 }

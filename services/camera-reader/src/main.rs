@@ -147,21 +147,33 @@ impl Player {
         let mut header = header_for(seq, entry, self.geometry);
         header.flags |= frame_flags::DROPPED_AT_SOURCE;
         header.stamps.capture_ns = now_ns();
-        header.stamps.published_ns = header.stamps.capture_ns;
-        let mut sample = self.sender.loan(0)?;
-        *sample.user_header_mut() = header;
-        self.sender.publish(sample)
+        publish_header(&self.sender, header)
     }
 
     fn publish_end(&self) -> Result<()> {
-        let mut sample = self.sender.loan(0)?;
-        *sample.user_header_mut() = FrameHeader {
-            seq: self.frames.len() as u64,
+        publish_end(&self.sender, self.frames.len() as u64)
+    }
+}
+
+/// A header without pixels (a frame left out, the end of the stream),
+/// stamped as published now.
+fn publish_header(sender: &Sender<[u8], FrameHeader>, mut header: FrameHeader) -> Result<()> {
+    header.stamps.published_ns = now_ns();
+    let mut sample = sender.loan(0)?;
+    *sample.user_header_mut() = header;
+    sender.publish(sample)
+}
+
+/// The end of the stream after `frames` frames.
+fn publish_end(sender: &Sender<[u8], FrameHeader>, frames: u64) -> Result<()> {
+    publish_header(
+        sender,
+        FrameHeader {
+            seq: frames,
             flags: frame_flags::END_OF_STREAM,
             ..Default::default()
-        };
-        self.sender.publish(sample)
-    }
+        },
+    )
 }
 
 /// The reader's ports: frames out; Tracks (real-time backlog, lockstep
@@ -408,10 +420,7 @@ fn live(ctx: ServiceContext) -> Result<()> {
             let mut h = header(seq, arrived, false);
             h.flags |= frame_flags::DROPPED_AT_SOURCE;
             h.stamps.capture_ns = arrived;
-            h.stamps.published_ns = now_ns();
-            let mut sample = sender.loan(0)?;
-            *sample.user_header_mut() = h;
-            sender.publish(sample)?;
+            publish_header(&sender, h)?;
             seq += 1;
             continue;
         }
@@ -429,8 +438,7 @@ fn live(ctx: ServiceContext) -> Result<()> {
             Captured::Bad(why) => {
                 tracing::error!(seq, "bad camera frame: {why}");
                 let mut h = header(seq, arrived, false);
-                shared_types::write_error_text(&mut h.error, &why);
-                h.flags |= frame_flags::BAD_INPUT;
+                mark_bad(&mut h, &why);
                 h
             }
         };
@@ -441,13 +449,7 @@ fn live(ctx: ServiceContext) -> Result<()> {
         backlog.published(seq);
         seq += 1;
     }
-    let mut end = sender.loan(0)?;
-    *end.user_header_mut() = FrameHeader {
-        seq,
-        flags: frame_flags::END_OF_STREAM,
-        ..Default::default()
-    };
-    sender.publish(end)?;
+    publish_end(&sender, seq)?;
     tracing::info!(frames = seq, "camera stream ended");
     while !stopped && wait(&ws, Duration::from_secs(1))? != Wake::Terminate {
         control.drain()?;

@@ -8,7 +8,7 @@
 //! that had masks, and the ATE next to the lockstep ATE; every run's
 //! figures go to `bench-results/realtime.json`.
 //!
-//! `realtime-bench [DATASET] [--runs N] [--load N] [--out FILE]`
+//! `realtime-bench [DATASET] [--runs N] [--load N] [--only 30:0,60:2] [--no-lockstep] [--out FILE]`
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -43,6 +43,13 @@ struct Args {
     /// the source, mode and fps on top.
     #[arg(long)]
     config: Option<PathBuf>,
+    /// Conditions to run, as FPS:BUSY pairs (e.g. `30:0,60:2`); default:
+    /// 30 and 60 fps, each without load and with `--load` busy processes.
+    #[arg(long, value_delimiter = ',', value_parser = parse_condition)]
+    only: Vec<(u32, usize)>,
+    /// Skip the lockstep reference run (no lockstep ATE in the table).
+    #[arg(long)]
+    no_lockstep: bool,
     /// Internal: be a busy process pinned to this core (the load).
     #[arg(long, hide = true)]
     burn: Option<usize>,
@@ -91,43 +98,52 @@ fn main() -> Result<()> {
         .with_context(|| args.dataset.display().to_string())?;
     let base = PipelineConfig::load_or_default(args.config.as_deref())?;
     let batch = run_dir::new_run_id();
-    let lockstep = run_once(
-        &base,
-        &dataset,
-        &args.output_dir,
-        &format!("rtb-{batch}-lockstep"),
-        |c| c.run.mode = ClockMode::Lockstep,
-    )?;
-    let lockstep_ate = lockstep.ate_rmse_m;
-    eprintln!(
-        "lockstep: {}/{} tracked, ATE {}",
-        lockstep.tracked,
-        lockstep.frames,
-        fmt_m(lockstep_ate)
-    );
+    let lockstep_ate = if args.no_lockstep {
+        None
+    } else {
+        let lockstep = run_once(
+            &base,
+            &dataset,
+            &args.output_dir,
+            &format!("rtb-{batch}-lockstep"),
+            |c| c.run.mode = ClockMode::Lockstep,
+        )?;
+        eprintln!(
+            "lockstep: {}/{} tracked, ATE {}",
+            lockstep.tracked,
+            lockstep.frames,
+            fmt_m(lockstep.ate_rmse_m)
+        );
+        lockstep.ate_rmse_m
+    };
+    let conditions = if args.only.is_empty() {
+        vec![(30, 0), (30, args.load), (60, 0), (60, args.load)]
+    } else {
+        args.only.clone()
+    };
     let mut runs = Vec::new();
-    for (fps, speed) in [(30.0, 1.0), (60.0, 2.0)] {
-        for load in [0, args.load] {
-            for i in 0..args.runs {
-                let burners = start_load(load)?;
-                let id = format!("rtb-{batch}-{fps}fps-load{load}-{i}");
-                let result = run_once(&base, &dataset, &args.output_dir, &id, |c| {
-                    c.run.mode = ClockMode::Realtime;
-                    c.run.speed = speed;
-                });
-                stop_load(burners);
-                let mut f = result?;
-                f.fps_in = fps;
-                f.busy_processes = load;
-                eprintln!(
-                    "{fps} fps, {load} busy: {:.1} tracked fps, {:.1} % dropped, e2e p99 {}, ATE {}",
-                    f.tracked_fps,
-                    f.dropped_pct,
-                    fmt_ms(f.end_to_end_p99_ms),
-                    fmt_m(f.ate_rmse_m)
-                );
-                runs.push(f);
-            }
+    // The recorded sequence is 30 fps: other rates play it faster or slower.
+    for &(fps_in, load) in &conditions {
+        let (fps, speed) = (f64::from(fps_in), f64::from(fps_in) / 30.0);
+        for i in 0..args.runs {
+            let burners = start_load(load)?;
+            let id = format!("rtb-{batch}-{fps}fps-load{load}-{i}");
+            let result = run_once(&base, &dataset, &args.output_dir, &id, |c| {
+                c.run.mode = ClockMode::Realtime;
+                c.run.speed = speed;
+            });
+            stop_load(burners);
+            let mut f = result?;
+            f.fps_in = fps;
+            f.busy_processes = load;
+            eprintln!(
+                "{fps} fps, {load} busy: {:.1} tracked fps, {:.1} % dropped, e2e p99 {}, ATE {}",
+                f.tracked_fps,
+                f.dropped_pct,
+                fmt_ms(f.end_to_end_p99_ms),
+                fmt_m(f.ate_rmse_m)
+            );
+            runs.push(f);
         }
     }
     println!(
@@ -146,7 +162,8 @@ fn main() -> Result<()> {
         "masked",
         "ATE (lockstep)"
     );
-    for (fps, load) in [(30.0, 0), (30.0, args.load), (60.0, 0), (60.0, args.load)] {
+    for &(fps_in, load) in &conditions {
+        let fps = f64::from(fps_in);
         let group: Vec<&RunFigures> = runs
             .iter()
             .filter(|r| r.fps_in == fps && r.busy_processes == load)
@@ -290,6 +307,22 @@ fn burn(core: usize) -> ! {
     loop {
         x = std::hint::black_box(x.wrapping_mul(6364136223846793005).wrapping_add(1));
     }
+}
+
+/// `FPS:BUSY` of `--only`.
+fn parse_condition(s: &str) -> Result<(u32, usize), String> {
+    let (fps, busy) = s
+        .split_once(':')
+        .ok_or_else(|| format!("'{s}': expected FPS:BUSY, e.g. 30:0 or 60:2"))?;
+    let fps: u32 =
+        fps.trim().parse().ok().filter(|&f| f > 0).ok_or_else(|| {
+            format!("'{s}': the frame rate '{fps}' is not a positive whole number")
+        })?;
+    let busy: usize = busy
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{s}': the busy process count '{busy}' is not a whole number"))?;
+    Ok((fps, busy))
 }
 
 fn fmt_m(v: Option<f64>) -> String {

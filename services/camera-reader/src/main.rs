@@ -18,7 +18,7 @@ use clap::Parser;
 use pipeline::clock::now_ns;
 use pipeline::config::{ClockMode, SourceKind};
 use pipeline::runtime::{run_service, InputError, ServiceArgs, ServiceContext};
-use pipeline::transport::{attach, wait, waitset, Receiver, Sender, Waiter, Wake};
+use pipeline::transport::{attach, wait, waitset, Receiver, SampleMut, Sender, Svc, Waiter, Wake};
 use shared_types::names::Topic;
 use shared_types::{frame_flags, Control, FrameHeader, ServiceKind, Track};
 
@@ -109,33 +109,61 @@ struct Player {
     sender: Sender<[u8], FrameHeader>,
 }
 
+/// A frame decoded into its loaned sample, not yet published: real-time
+/// playback decodes each frame ahead of its instant, as a camera's frames
+/// arrive already decoded, so that the PNG codec of file playback (CPU
+/// that a camera does not spend) is not part of the end-to-end latency.
+struct Decoded {
+    sample: SampleMut<Svc, [u8], FrameHeader>,
+    header: FrameHeader,
+}
+
 impl Player {
-    /// Decodes frame `seq` straight into a loaned sample and publishes it; a
-    /// frame that cannot be decoded is published as BAD_INPUT with the reason.
-    fn publish(&self, seq: u64, replay: bool) -> Result<()> {
+    /// Decodes frame `seq` straight into a loaned sample (None past the
+    /// end); a frame that cannot be decoded is marked BAD_INPUT with the
+    /// reason and still goes out, so that every consumer and the outputs
+    /// account for it.
+    fn decode(&self, seq: u64) -> Result<Option<Decoded>> {
         let Some(entry) = self.frames.get(seq as usize) else {
-            return self.publish_end();
+            return Ok(None);
         };
-        let capture_ns = now_ns();
         let mut header = header_for(seq, entry, self.geometry);
-        header.stamps.capture_ns = capture_ns;
-        if replay {
-            header.flags |= frame_flags::REPLAY;
-        }
         let mut sample = self
             .sender
             .loan(self.geometry.payload_len(entry.depth.is_some()))?;
         if let Err(e) = decode_frame(entry, self.geometry, sample.payload_mut()) {
-            // The frame still goes out (marked, pixels to be ignored) so that
-            // every consumer and the outputs account for it.
             tracing::error!(seq, "bad input frame: {e}");
             mark_bad(&mut header, &e);
         }
+        Ok(Some(Decoded { sample, header }))
+    }
+
+    /// Publishes a decoded frame, captured at `capture_ns`.
+    fn send(&self, decoded: Decoded, capture_ns: u64, replay: bool) -> Result<()> {
+        let Decoded {
+            mut sample,
+            mut header,
+        } = decoded;
+        header.stamps.capture_ns = capture_ns;
+        if replay {
+            header.flags |= frame_flags::REPLAY;
+        }
         header.stamps.published_ns = now_ns();
+        let seq = header.seq;
         *sample.user_header_mut() = header;
         self.sender.publish(sample)?;
         tracing::debug!(seq, replay, "published frame");
         Ok(())
+    }
+
+    /// Decodes and publishes frame `seq` now (captured when its decoding
+    /// began); past the end, the end of the stream.
+    fn publish(&self, seq: u64, replay: bool) -> Result<()> {
+        let capture_ns = now_ns();
+        match self.decode(seq)? {
+            Some(decoded) => self.send(decoded, capture_ns, replay),
+            None => self.publish_end(),
+        }
     }
 
     /// Frame `seq` left out (real time, the pipeline is behind): its header
@@ -318,6 +346,14 @@ fn realtime(
         .unwrap_or(0.0);
     let mut backlog = Backlog::default();
     for seq in start_seq..total {
+        // Decoded ahead of its instant, unless the pipeline is behind (a
+        // frame left out is never decoded).
+        backlog.note_tracks(tracks)?;
+        let mut ahead = if backlog.full() {
+            None
+        } else {
+            player.decode(seq)?
+        };
         let due = t0 + ((player.frames[seq as usize].timestamp - first_ts) / speed * 1e9) as u64;
         loop {
             let now = now_ns();
@@ -329,11 +365,17 @@ fn realtime(
             }
             control.drain()?; // replays do not apply at camera rate
         }
-        backlog.note_tracks(tracks)?;
-        if backlog.full() {
-            player.publish_dropped(seq)?;
-        } else {
-            player.publish(seq, false)?;
+        if ahead.is_none() {
+            // Left out ahead of time: the Tracks since may have made room.
+            backlog.note_tracks(tracks)?;
+            if backlog.full() {
+                player.publish_dropped(seq)?;
+                continue;
+            }
+            ahead = player.decode(seq)?;
+        }
+        if let Some(decoded) = ahead {
+            player.send(decoded, now_ns(), false)?;
             backlog.published(seq);
         }
     }

@@ -411,6 +411,7 @@ impl Default for ServicesConfig {
                 score_threshold: Some(0.25),
                 iou_threshold: Some(0.7),
                 threads: Some(2),
+                nice: Some(10),
                 ..ServiceConfig::default()
             },
             propagator: ServiceConfig {
@@ -466,6 +467,12 @@ pub struct ServiceConfig {
     /// Model backends: ONNX Runtime intra-op threads; SLAM: feature
     /// extraction threads (pyramid levels in parallel; default 2).
     pub threads: Option<usize>,
+    /// The process's scheduling niceness (-20..=19, higher yields the CPU):
+    /// the segmenter runs at 10 by default, so that on a busy robot
+    /// computer its long keyframe inferences take the cycles tracking and
+    /// propagation leave instead of delaying them (tracking never waits for
+    /// it: its masks are carried forward). Unset: the supervisor's own.
+    pub nice: Option<i32>,
     /// Two-part models (SAM 2: `model` is the image encoder): the prompt /
     /// mask decoder's file name, explicit path and sha256.
     pub decoder_model: String,
@@ -657,6 +664,13 @@ impl PipelineConfig {
                 if !(1..=256).contains(&t) {
                     return Err(format!(
                         "key `services.{name}.threads`: {t} is outside 1..=256"
+                    ));
+                }
+            }
+            if let Some(n) = svc.nice {
+                if !(-20..=19).contains(&n) {
+                    return Err(format!(
+                        "key `services.{name}.nice`: {n} is not a niceness (-20..=19)"
                     ));
                 }
             }
@@ -926,6 +940,8 @@ mod tests {
         assert_eq!((c.camera.fx, c.camera.readout_s), (520.9, 0.0));
         assert_eq!(c.camera.fy, CameraConfig::default().fy);
         // One key of a service section keeps the section's other defaults.
+        let err = PipelineConfig::parse("[services.segmenter]\nnice = 25\n").unwrap_err();
+        assert!(err.to_string().contains("services.segmenter.nice"), "{err}");
         let c = PipelineConfig::parse("[services.segmenter]\nthreads = 1\n").unwrap();
         assert_eq!(c.services.segmenter.threads, Some(1));
         assert_eq!(c.services.segmenter.backend, "yolov8-seg");

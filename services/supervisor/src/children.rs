@@ -108,8 +108,9 @@ pub fn service_program(config: &PipelineConfig, kind: ServiceKind) -> Result<Vec
 /// terminal reaches only the supervisor, which then stops the services in
 /// order) and SIGTERM when the supervisor dies, so no orphan outlives it.
 /// Its stderr is piped: the supervisor forwards it and remembers the last
-/// error line, to quote it when it gives up on the service.
-pub fn spawn(program: &[String], extra_args: &[String]) -> Result<Child> {
+/// error line, to quote it when it gives up on the service. `nice` (the
+/// service's `nice` key) sets its scheduling niceness.
+pub fn spawn(program: &[String], extra_args: &[String], nice: Option<i32>) -> Result<Child> {
     let (bin, leading) = program.split_first().context("empty service command")?;
     let parent = std::process::id() as libc::pid_t;
     let mut cmd = Command::new(bin);
@@ -127,6 +128,11 @@ pub fn spawn(program: &[String], extra_args: &[String]) -> Result<Child> {
             // The supervisor may have died between fork and prctl.
             if libc::getppid() != parent {
                 libc::_exit(1);
+            }
+            if let Some(n) = nice {
+                if libc::setpriority(libc::PRIO_PROCESS, 0, n) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
             }
             Ok(())
         });
@@ -208,9 +214,24 @@ mod tests {
 
     #[test]
     fn spawned_child_gets_its_own_group_and_dies_with_us_by_signal() {
-        let mut child = spawn(&["/bin/sh".into(), "-c".into(), "exit 7".into()], &[]).unwrap();
+        let mut child =
+            spawn(&["/bin/sh".into(), "-c".into(), "exit 7".into()], &[], None).unwrap();
         let status = child.wait().unwrap();
         assert_eq!(status.code(), Some(7));
-        assert!(spawn(&["/no/such/binary".into()], &[]).is_err());
+        assert!(spawn(&["/no/such/binary".into()], &[], None).is_err());
+    }
+
+    #[test]
+    fn spawned_child_runs_at_the_configured_niceness() {
+        // Field 19 of /proc/self/stat is the niceness (of `cut`, which
+        // inherits the shell's).
+        let script = r#"exit $(cut -d" " -f19 /proc/self/stat)"#;
+        let mut child = spawn(
+            &["/bin/sh".into(), "-c".into(), script.into()],
+            &[],
+            Some(7),
+        )
+        .unwrap();
+        assert_eq!(child.wait().unwrap().code(), Some(7));
     }
 }

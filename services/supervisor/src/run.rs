@@ -291,9 +291,10 @@ impl Supervisor {
                 }
             }
         }
+        let nice = self.config.service(kind).nice;
         let svc = self.svc(kind);
         let program = svc.program.clone();
-        match spawn(&program, &args) {
+        match spawn(&program, &args, nice) {
             Ok(mut child) => {
                 svc.stderr_forwarder = forward_stderr(&mut child, svc.last_error.clone());
                 tracing::info!(pid = child.id(), "started {}", kind.as_str());

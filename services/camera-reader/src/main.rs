@@ -346,27 +346,30 @@ fn realtime(
         .unwrap_or(0.0);
     let mut backlog = Backlog::default();
     for seq in start_seq..total {
-        // Decoded ahead of its instant, unless the pipeline is behind (a
-        // frame left out is never decoded).
-        backlog.note_tracks(tracks)?;
-        let mut ahead = if backlog.full() {
-            None
-        } else {
-            player.decode(seq)?
-        };
+        // Decoded ahead of its instant as soon as the pipeline has room for
+        // it (a Track wakes the wait); a frame left out is never decoded.
         let due = t0 + ((player.frames[seq as usize].timestamp - first_ts) / speed * 1e9) as u64;
+        let mut ahead = None;
         loop {
             let now = now_ns();
             if now >= due {
                 break;
+            }
+            if ahead.is_none() {
+                backlog.note_tracks(tracks)?;
+                if !backlog.full() {
+                    ahead = player.decode(seq)?;
+                    continue; // the decoding took time
+                }
             }
             if wait(ws, Duration::from_nanos(due - now))? == Wake::Terminate {
                 return Ok(());
             }
             control.drain()?; // replays do not apply at camera rate
         }
+        let captured = now_ns();
         if ahead.is_none() {
-            // Left out ahead of time: the Tracks since may have made room.
+            // Not decoded ahead: decoded now, its latency counted.
             backlog.note_tracks(tracks)?;
             if backlog.full() {
                 player.publish_dropped(seq)?;
@@ -375,7 +378,7 @@ fn realtime(
             ahead = player.decode(seq)?;
         }
         if let Some(decoded) = ahead {
-            player.send(decoded, now_ns(), false)?;
+            player.send(decoded, captured, false)?;
             backlog.published(seq);
         }
     }

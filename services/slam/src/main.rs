@@ -135,6 +135,15 @@ struct State {
 /// keyframes are made from propagated masks again.
 const SEGMENTER_PATIENCE: u64 = 60;
 
+/// A map of at most this many keyframes is young: in real time a frame the
+/// keyframe rule picks goes in now with the masks it was tracked with
+/// instead of waiting for (or leaving the keyframe to) segmenter masks. A young map cannot relocalise
+/// (ORB-SLAM2 resets a map lost this young), and on a loaded machine the
+/// segmenter, niced, may take a second or more to answer: measured, one of
+/// three runs at 60 fps with two busy processes lost tracking 10 frames
+/// after its first keyframe and never came back.
+const YOUNG_MAP_KEYFRAMES: u32 = 5;
+
 fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
     let loops_out = outputs.loops.as_deref();
     let mut tracker = tracker_from_config(&ctx, files)?;
@@ -326,7 +335,8 @@ fn from_segmenter(m: &MasksSample) -> bool {
 /// Real time: a frame tracked with propagated masks while the segmenter
 /// works on it waits for them; other propagated frames leave the keyframe
 /// to the next segmented one, unless the segmenter has not answered for a
-/// long while (then keyframes come from propagated masks, as they must).
+/// long while or the map is young (then keyframes come from propagated
+/// masks, as they must).
 fn keyframe_timing(st: &State, index: usize, realtime: bool) -> KeyframeTiming {
     if !realtime {
         return KeyframeTiming::Now;
@@ -343,8 +353,11 @@ fn keyframe_timing(st: &State, index: usize, realtime: bool) -> KeyframeTiming {
     let segmenter_alive = st
         .last_segmented
         .is_some_and(|s| seq <= s + SEGMENTER_PATIENCE);
+    let young_map = st
+        .last
+        .is_some_and(|t| (1..=YOUNG_MAP_KEYFRAMES).contains(&t.counts.keyframes));
     match route {
-        _ if segmented_masks => KeyframeTiming::Now,
+        _ if segmented_masks || young_map => KeyframeTiming::Now,
         Some(RouteKind::SegmentBehind) => KeyframeTiming::AfterBetterMasks,
         Some(RouteKind::Propagate) if segmenter_alive => KeyframeTiming::NotThisFrame,
         _ => KeyframeTiming::Now,

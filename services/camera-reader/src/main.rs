@@ -324,6 +324,22 @@ impl Backlog {
         newest.is_some() && self.decoded.len() as u64 >= SOURCE_BACKLOG
     }
 
+    /// Frame `seq` decoded now, unless the pipeline is behind (a frame
+    /// left out is never decoded).
+    fn decode_if_room(
+        &mut self,
+        player: &Player,
+        tracks: &Receiver<Track, ()>,
+        seq: u64,
+    ) -> Result<Option<Decoded>> {
+        self.note_tracks(tracks)?;
+        if self.full() {
+            Ok(None)
+        } else {
+            player.decode(seq)
+        }
+    }
+
     fn published(&mut self, seq: u64) {
         self.decoded.push((seq, now_ns()));
     }
@@ -347,7 +363,7 @@ fn realtime(
     let mut backlog = Backlog::default();
     for seq in start_seq..total {
         // Decoded ahead of its instant as soon as the pipeline has room for
-        // it (a Track wakes the wait); a frame left out is never decoded.
+        // it (a Track wakes the wait).
         let due = t0 + ((player.frames[seq as usize].timestamp - first_ts) / speed * 1e9) as u64;
         let mut ahead = None;
         loop {
@@ -356,9 +372,8 @@ fn realtime(
                 break;
             }
             if ahead.is_none() {
-                backlog.note_tracks(tracks)?;
-                if !backlog.full() {
-                    ahead = player.decode(seq)?;
+                ahead = backlog.decode_if_room(player, tracks, seq)?;
+                if ahead.is_some() {
                     continue; // the decoding took time
                 }
             }
@@ -370,16 +385,14 @@ fn realtime(
         let captured = now_ns();
         if ahead.is_none() {
             // Not decoded ahead: decoded now, its latency counted.
-            backlog.note_tracks(tracks)?;
-            if backlog.full() {
-                player.publish_dropped(seq)?;
-                continue;
-            }
-            ahead = player.decode(seq)?;
+            ahead = backlog.decode_if_room(player, tracks, seq)?;
         }
-        if let Some(decoded) = ahead {
-            player.send(decoded, captured, false)?;
-            backlog.published(seq);
+        match ahead {
+            Some(decoded) => {
+                player.send(decoded, captured, false)?;
+                backlog.published(seq);
+            }
+            None => player.publish_dropped(seq)?,
         }
     }
     player.publish_end()?;

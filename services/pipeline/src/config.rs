@@ -471,7 +471,9 @@ pub struct ServiceConfig {
     /// the segmenter runs at 10 by default, so that on a busy robot
     /// computer its long keyframe inferences take the cycles tracking and
     /// propagation leave instead of delaying them (tracking never waits for
-    /// it: its masks are carried forward). Unset: the supervisor's own.
+    /// it: its masks are carried forward). It applies once the SLAM has
+    /// tracked its first frame (until then every stage waits for the
+    /// first segmenter masks). Unset: the supervisor's own.
     pub nice: Option<i32>,
     /// Two-part models (SAM 2: `model` is the image encoder): the prompt /
     /// mask decoder's file name, explicit path and sha256.

@@ -66,12 +66,29 @@ pub enum KeyframeTiming {
     NotThisFrame,
 }
 
+/// Tracking has weakened when two tracked frames in a row have fewer than
+/// this share of the inliers of the newest keyframe (or of the one waiting
+/// for its segmenter masks): the map they track against is getting stale,
+/// and a keyframe then does not wait for better masks (a waiting one goes
+/// in with the masks it was tracked with; the frame's own goes in now). In
+/// real time on a busy machine the niced segmenter may take a second to
+/// answer: measured at 30 fps with two busy processes, a keyframe that
+/// waited 25 frames saw the inliers fall 297 -> 45 and the camera was lost 3
+/// frames after it went in. One weak frame alone is not enough: a sudden
+/// fall is as often a wrong pose (at 60 fps under load a frame 0.1 s after
+/// the last, 74 inliers after 598, 0.6 m off), which must not seed points.
+const WEAKENED: f64 = 0.5;
+
 /// A keyframe waiting for its better masks.
 struct PendingKeyframe {
     frame: Frame,
     pose_cw: Isometry3<f64>,
     matched: Vec<Option<usize>>,
     inliers: usize,
+    /// Its timestamp, and the keyframe rule's frame count when it was
+    /// tracked.
+    timestamp: f64,
+    frames_counted: u32,
 }
 
 /// What one call of `track_rgbd` reports.
@@ -84,6 +101,10 @@ pub struct FrameResult {
     /// The frame will become a keyframe when its better masks come
     /// ([`KeyframeTiming::AfterBetterMasks`]).
     pub keyframe_pending: bool,
+    /// The keyframe that was pending went in before this frame, with the
+    /// masks it was tracked with: tracking weakened while it waited
+    /// ([`WEAKENED`]).
+    pub waiting_keyframe_inserted: bool,
     /// The next frame should become a keyframe (a hint for whoever decides
     /// which frames get fresh masks).
     pub next_needs_keyframe: bool,
@@ -117,6 +138,8 @@ pub struct System {
     mapped: MappingCounts,
     /// A keyframe waiting for its better masks.
     pending_keyframe: Option<PendingKeyframe>,
+    /// The last frame was weak ([`WEAKENED`]).
+    weak_before: bool,
     /// Bag-of-words vocabulary of the keyframe database (relocalisation).
     vocabulary: Arc<Vocabulary>,
     /// Loop closing when mapping is inline (the mapping thread has its own).
@@ -199,6 +222,7 @@ impl System {
             mapping_ms: 0.0,
             mapped: MappingCounts::default(),
             pending_keyframe: None,
+            weak_before: false,
             motion: MotionCheck::new(MotionCheckParams::default()),
             moving_regions: Vec::new(),
         }
@@ -359,10 +383,20 @@ impl System {
             self.moving_regions.clear();
             0
         };
+        let weakened = self.weakened(&tracked);
+        let timing = if weakened {
+            KeyframeTiming::Now
+        } else {
+            timing
+        };
         // A successful initialisation made the first keyframe.
         let started = initialising && tracked.state == TrackingState::Ok;
         let decision = self.decide_keyframe(&tracked, &frame, input.timestamp, started, timing);
         let keyframe_inserted = decision == Decision::Inserted;
+        if matches!(decision, Decision::Inserted | Decision::Pending) {
+            // A new reference: weak frames count against it afresh.
+            self.weak_before = false;
+        }
         if tracked.state.is_tracked() {
             // Relative to the newest keyframe, so that the trajectory
             // follows the keyframes when a loop correction moves them.
@@ -392,6 +426,12 @@ impl System {
             self.start_mapping(self.map.keyframes.len() - 1);
         }
         counts.mapping_us = (self.mapping_ms * 1e3) as u32;
+        // The keyframe waiting for its masks goes in without them once
+        // tracking weakened or was lost (after this frame's own work with
+        // the map: inserting hands the map to local mapping).
+        let waiting_keyframe_inserted = self.pending_keyframe.is_some()
+            && (weakened || !tracked.state.is_tracked())
+            && self.complete_keyframe(None);
         let keyframe_pending = decision == Decision::Pending;
         if keyframe_pending {
             self.pending_keyframe = Some(PendingKeyframe {
@@ -399,6 +439,8 @@ impl System {
                 pose_cw: tracked.pose_cw,
                 matched: tracked.matched,
                 inliers: tracked.inliers,
+                timestamp: input.timestamp,
+                frames_counted: self.tracking.frames_since_keyframe(),
             });
         }
         let next_needs_keyframe = !keyframe_inserted
@@ -418,6 +460,7 @@ impl System {
             state: tracked.state,
             keyframe_inserted,
             keyframe_pending,
+            waiting_keyframe_inserted,
             next_needs_keyframe,
             counts,
             extract_ms,
@@ -587,6 +630,19 @@ impl System {
         }
     }
 
+    /// Whether tracking has weakened ([`WEAKENED`]) with `tracked`.
+    fn weakened(&mut self, tracked: &Tracked) -> bool {
+        let reference = self
+            .pending_keyframe
+            .as_ref()
+            .map_or(self.tracking.reference_inliers(), |p| p.inliers);
+        let weak =
+            tracked.state.is_tracked() && (tracked.inliers as f64) < WEAKENED * reference as f64;
+        let weakened = weak && self.weak_before;
+        self.weak_before = weak;
+        weakened
+    }
+
     /// Whether a keyframe waits for [`System::complete_keyframe`].
     pub fn keyframe_pending(&self) -> bool {
         self.pending_keyframe.is_some()
@@ -607,6 +663,8 @@ impl System {
             pose_cw,
             matched,
             inliers,
+            timestamp,
+            frames_counted,
         } = pending;
         let (frame, matched) = match mask.filter(|m| m.len() == frame.width * frame.height) {
             Some(labels) => {
@@ -627,8 +685,18 @@ impl System {
             .map(|m| m.filter(|&p| self.map.points.get(p).is_some_and(|p| p.is_live())))
             .collect();
         let inliers = inliers.min(matched.iter().flatten().count());
+        // The frames tracked while it waited count towards the next
+        // keyframe: the cadence runs from the keyframe's own frame, as in
+        // lockstep, not from when its masks came (at 60 fps the segmenter
+        // takes 5-8 frames: real-time maps had 21 keyframes where lockstep
+        // has 33).
+        let waited = self
+            .tracking
+            .frames_since_keyframe()
+            .saturating_sub(frames_counted);
         self.tracking
             .insert_keyframe(&mut self.map, &frame, &pose_cw, &matched, inliers);
+        self.tracking.backdate_keyframe(waited, timestamp);
         self.keyframes_inserted += 1;
         self.start_mapping(self.map.keyframes.len() - 1);
         true
@@ -644,6 +712,7 @@ impl System {
             state: TrackingState::Skipped,
             keyframe_inserted: false,
             keyframe_pending: false,
+            waiting_keyframe_inserted: false,
             next_needs_keyframe: false,
             counts: FrameCounts::default(),
             extract_ms: 0.0,

@@ -302,11 +302,13 @@ fn track_next_ready(
     };
     let Some(index) = index else { return Ok(None) };
     let timing = keyframe_timing(st, index, realtime);
-    let (track, pending) = make_track(st, index, tracker, timing)?;
+    let (track, waiting) = make_track(st, index, tracker, timing)?;
     // Everything up to this frame is consumed.
     let seq = track.seq;
-    if pending {
-        st.pending_keyframe = Some(seq);
+    match waiting {
+        WaitingKeyframe::ThisFrame => st.pending_keyframe = Some(seq),
+        WaitingKeyframe::InsertedWithout => st.pending_keyframe = None,
+        WaitingKeyframe::Unchanged => {}
     }
     st.last = Some(track);
     st.frames.retain(|f| f.sample.user_header().seq > seq);
@@ -366,14 +368,14 @@ fn keyframe_timing(st: &State, index: usize, realtime: bool) -> KeyframeTiming {
 
 /// The Track of the ready frame at `index`: tracked with its masks, or
 /// skipped when the reader marked it bad (answered only once routed, so the
-/// supervisor has the reason on file). True with it when its keyframe waits
-/// for the segmenter's masks.
+/// supervisor has the reason on file); with it, what became of the keyframe
+/// waiting for the segmenter's masks.
 fn make_track(
     st: &State,
     index: usize,
     tracker: &mut dyn Tracker,
     keyframe: KeyframeTiming,
-) -> Result<(Track, bool)> {
+) -> Result<(Track, WaitingKeyframe)> {
     let held = &st.frames[index];
     let header = held.sample.user_header();
     let seq = header.seq;
@@ -384,7 +386,7 @@ fn make_track(
     if header.has(frame_flags::BAD_INPUT)
         || RouteKind::from_u32(route.kind) == Some(RouteKind::Refuse)
     {
-        return Ok((skipped_track(header, stamps), false));
+        return Ok((skipped_track(header, stamps), WaitingKeyframe::Unchanged));
     }
     // Not refused yet malformed (the supervisor missed a frame?): skipped
     // with a warning, this process stays up.
@@ -392,7 +394,7 @@ fn make_track(
         Ok(frame) => frame,
         Err(e) => {
             tracing::warn!(seq, "not tracking a malformed frame: {e:#}");
-            return Ok((skipped_track(header, stamps), false));
+            return Ok((skipped_track(header, stamps), WaitingKeyframe::Unchanged));
         }
     };
     let masks_sample = st.masks.iter().find(|m| m.user_header().seq == seq);
@@ -426,7 +428,23 @@ fn make_track(
         counts: outcome.counts,
         stamps,
     };
-    Ok((track, outcome.keyframe_pending))
+    let waiting = if outcome.keyframe_pending {
+        WaitingKeyframe::ThisFrame
+    } else if outcome.waiting_keyframe_inserted {
+        WaitingKeyframe::InsertedWithout
+    } else {
+        WaitingKeyframe::Unchanged
+    };
+    Ok((track, waiting))
+}
+
+/// What tracking a frame did to the keyframe waiting for segmenter masks.
+enum WaitingKeyframe {
+    Unchanged,
+    /// This frame's keyframe waits for them now.
+    ThisFrame,
+    /// The waiting one went in without them (tracking weakened).
+    InsertedWithout,
 }
 
 fn skipped_track(h: &FrameHeader, mut stamps: StageStamps) -> Track {

@@ -156,6 +156,7 @@ impl Tracker for RgbdTracker {
             state: convert::track_state(r.state),
             keyframe_inserted: r.keyframe_inserted || r.keyframe_pending,
             keyframe_pending: r.keyframe_pending,
+            waiting_keyframe_inserted: r.waiting_keyframe_inserted,
             // Lost frames ask for the segmenter too: relocalising on
             // fresh masks is what a dynamic scene needs.
             next_needs_keyframe: r.next_needs_keyframe

@@ -61,6 +61,7 @@ impl Tracker for ScriptedTracker {
             state: TrackState::Ok,
             keyframe_inserted: keyframe,
             keyframe_pending: false,
+            waiting_keyframe_inserted: false,
             next_needs_keyframe: self.wants_keyframe_after(input.seq),
             counts: TrackCounts {
                 keyframes: self.keyframes,

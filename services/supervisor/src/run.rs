@@ -23,7 +23,7 @@ use shared_types::{
 };
 
 use crate::children::{
-    describe_exit, is_input_error, process_matches, service_program, signal, spawn,
+    describe_exit, is_input_error, process_matches, renice, service_program, signal, spawn,
     RestartDecision, RestartPolicy,
 };
 use crate::external::ExternalStream;
@@ -230,6 +230,13 @@ struct Supervisor {
     /// The newest tracked frames, oldest first: a restarted SLAM resumes
     /// its motion model from them (`--resume-poses`).
     recent_tracked: RecentTracked,
+    /// Services run at their configured niceness (`services.*.nice`): the
+    /// SLAM has tracked a frame. Until then they run at the supervisor's:
+    /// the first segmenter masks are what every stage waits for at the
+    /// start, and a niced segmenter on a busy machine took 0.5 s for them
+    /// (at 60 fps with two busy processes the first 32-40 frames went
+    /// untracked).
+    niced: bool,
     /// `source.kind = "external"`: the outside publisher's stream (no
     /// camera-reader runs).
     external: Option<ExternalStream>,
@@ -291,7 +298,7 @@ impl Supervisor {
                 }
             }
         }
-        let nice = self.config.service(kind).nice;
+        let nice = self.config.service(kind).nice.filter(|_| self.niced);
         let svc = self.svc(kind);
         let program = svc.program.clone();
         match spawn(&program, &args, nice) {
@@ -336,6 +343,19 @@ impl Supervisor {
         Ok(())
     }
 
+    /// Every running service with a `nice` key gets it.
+    fn apply_niceness(&self) {
+        for svc in &self.services {
+            let (Some(nice), Some(child)) = (self.config.service(svc.kind).nice, &svc.child) else {
+                continue;
+            };
+            match renice(child.id(), nice) {
+                Ok(()) => tracing::info!("{} now runs at niceness {nice}", svc.kind.as_str()),
+                Err(e) => tracing::warn!("cannot set the niceness of {}: {e}", svc.kind.as_str()),
+            }
+        }
+    }
+
     fn on_track(&mut self, t: Track) -> Result<()> {
         if self.recorded.contains(t.seq) {
             return Ok(());
@@ -360,6 +380,10 @@ impl Supervisor {
             .and_then(|p| p.route)
             .map(|r| r.as_str())
             .unwrap_or("none");
+        if !self.niced && state.is_some_and(|s| s.is_tracked()) {
+            self.niced = true;
+            self.apply_niceness();
+        }
         // A skipped (bad) frame was not tracked: it has no opinion on keyframes.
         if state != Some(TrackState::Skipped) {
             self.router.on_track(t.next_needs_keyframe != 0);
@@ -969,6 +993,8 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
         status_dirty: true,
         fatal: None,
         last_progress: Instant::now(),
+        // A resumed run whose SLAM had tracked: niced from the start.
+        niced: old_rows.iter().any(FrameRow::is_tracked),
         recent_tracked: RecentTracked::from_rows(&old_rows),
         external: (config.source.kind == SourceKind::External).then(ExternalStream::default),
         config,

@@ -101,6 +101,9 @@ pub struct Tracking {
     /// Map points the last tracked frame matched (seeds the local map).
     last_matched: Vec<usize>,
     frames_since_keyframe: u32,
+    /// Timestamp of the last keyframe's frame (None: not known, e.g. the
+    /// map's first keyframe or a resumed map).
+    keyframe_timestamp: Option<f64>,
     /// Inliers of the frame that made the last keyframe.
     reference_inliers: usize,
     pub(crate) lost: bool,
@@ -125,6 +128,7 @@ impl Tracking {
             recent: Vec::new(),
             last_matched: Vec::new(),
             frames_since_keyframe: 0,
+            keyframe_timestamp: None,
             reference_inliers: 0,
             lost: false,
             since_relocalisation: None,
@@ -363,6 +367,24 @@ impl Tracking {
         self.frames_since_keyframe += 1;
     }
 
+    /// Inliers of the frame that made the last keyframe.
+    pub(crate) fn reference_inliers(&self) -> usize {
+        self.reference_inliers
+    }
+
+    /// Frames tracked since the last keyframe.
+    pub(crate) fn frames_since_keyframe(&self) -> u32 {
+        self.frames_since_keyframe
+    }
+
+    /// The keyframe just inserted was taken from a frame `frames` tracked
+    /// frames ago, at `timestamp` (it waited for its masks): the next
+    /// keyframe is due counting from that frame.
+    pub(crate) fn backdate_keyframe(&mut self, frames: u32, timestamp: f64) {
+        self.frames_since_keyframe = frames;
+        self.keyframe_timestamp = Some(timestamp);
+    }
+
     /// ORB-SLAM2 (RGB-D): many close points not yet in the map, or too few
     /// tracked against the reference keyframe, or too long since the last
     /// unless an older keyframe of `map` already sees from where the camera
@@ -433,9 +455,15 @@ impl Tracking {
         due
     }
 
-    /// The next frame reaches the longest allowed gap between keyframes.
+    /// The next frame reaches the longest allowed gap between keyframes,
+    /// in frames or, where frames were dropped (real time on a busy
+    /// machine), in the camera's time since the last keyframe's frame.
     fn keyframe_due(&self) -> bool {
-        self.frames_since_keyframe + 1 >= self.params.max_frames_between_keyframes
+        let long_ago = self
+            .keyframe_timestamp
+            .zip(self.last_timestamp())
+            .is_some_and(|(then, now)| now - then >= self.params.max_seconds_between_keyframes);
+        self.frames_since_keyframe + 1 >= self.params.max_frames_between_keyframes || long_ago
     }
 
     /// Makes `frame` (tracked at `pose_cw`) a keyframe of `map`: matched
@@ -474,6 +502,7 @@ impl Tracking {
             }
         }
         self.frames_since_keyframe = 0;
+        self.keyframe_timestamp = self.last_timestamp();
         self.reference_inliers = inliers.max(1);
         map.add_keyframe(KeyFrame {
             pose_cw: *pose_cw,

@@ -101,9 +101,9 @@ pub struct FrameResult {
     /// The frame will become a keyframe when its better masks come
     /// ([`KeyframeTiming::AfterBetterMasks`]).
     pub keyframe_pending: bool,
-    /// The keyframe that was pending went in before this frame, with the
-    /// masks it was tracked with: tracking weakened while it waited
-    /// ([`WEAKENED`]).
+    /// The keyframe that was pending went in with this frame's call (after
+    /// this frame was tracked), with the masks it was tracked with:
+    /// tracking weakened ([`WEAKENED`]) or was lost while it waited.
     pub waiting_keyframe_inserted: bool,
     /// The next frame should become a keyframe (a hint for whoever decides
     /// which frames get fresh masks).
@@ -365,7 +365,11 @@ impl System {
         } else {
             self.tracking.track(&mut self.map, &frame, input.timestamp)
         };
-        if let (TrackingState::Ok, Some(raw)) = (tracked.state, &raw) {
+        // A relocalised frame too: in a fast turn it needs the correction
+        // as much as any (it has the motion history unless the frame before
+        // was lost). slam-bench on every 3rd shared frame: ATE 0.0203 ->
+        // 0.0142 m; every frame and every 2nd unchanged.
+        if let (TrackingState::Ok | TrackingState::Relocalised, Some(raw)) = (tracked.state, &raw) {
             if let Some(refined) = self.tracking.refine_for_shutter(
                 &self.map,
                 &mut frame,

@@ -31,8 +31,8 @@ pub struct TrackOutcome {
     /// come (`keyframe_pending`).
     pub keyframe_inserted: bool,
     pub keyframe_pending: bool,
-    /// The keyframe that waited for its segmenter masks went in before
-    /// this frame without them (tracking weakened while it waited).
+    /// The keyframe that waited for its segmenter masks went in with this
+    /// frame, without them (tracking weakened or was lost while it waited).
     pub waiting_keyframe_inserted: bool,
     /// The next frame should be a keyframe (drives the supervisor's routing).
     pub next_needs_keyframe: bool,

@@ -391,9 +391,10 @@ impl Tracking {
     /// is (a camera that comes back keeps a bounded map; a weakening view
     /// still gets its keyframe).
     pub(crate) fn need_keyframe(&self, tracked: &Tracked, frame: &Frame, map: &Map) -> bool {
-        // Just relocalised: no velocity, no rolling-shutter correction yet
-        // (it needs MOTION_HISTORY tracked frames), so the pose is rougher
-        // than usual; a keyframe now would seed points from it. Measured on
+        // Just relocalised: after a loss or a restart there is no velocity
+        // and no rolling-shutter correction yet (it needs MOTION_HISTORY
+        // tracked frames), and a relocalised pose is rougher than a tracked
+        // one; a keyframe now would seed points from it. Measured on
         // fr1_rpy with the map reloaded at frame 11 (a SLAM restart while
         // the camera turns fast): ATE 0.0309 m with an immediate keyframe,
         // see docs/design.md for the figure with this wait.

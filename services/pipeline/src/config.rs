@@ -941,9 +941,9 @@ mod tests {
         assert_eq!(c.services.propagator.backend, "lk");
         assert_eq!((c.camera.fx, c.camera.readout_s), (520.9, 0.0));
         assert_eq!(c.camera.fy, CameraConfig::default().fy);
-        // One key of a service section keeps the section's other defaults.
         let err = PipelineConfig::parse("[services.segmenter]\nnice = 25\n").unwrap_err();
         assert!(err.to_string().contains("services.segmenter.nice"), "{err}");
+        // One key of a service section keeps the section's other defaults.
         let c = PipelineConfig::parse("[services.segmenter]\nthreads = 1\n").unwrap();
         assert_eq!(c.services.segmenter.threads, Some(1));
         assert_eq!(c.services.segmenter.backend, "yolov8-seg");

@@ -230,13 +230,6 @@ struct Supervisor {
     /// The newest tracked frames, oldest first: a restarted SLAM resumes
     /// its motion model from them (`--resume-poses`).
     recent_tracked: RecentTracked,
-    /// Services run at their configured niceness (`services.*.nice`): the
-    /// SLAM has tracked a frame. Until then they run at the supervisor's:
-    /// the first segmenter masks are what every stage waits for at the
-    /// start, and a niced segmenter on a busy machine took 0.5 s for them
-    /// (at 60 fps with two busy processes the first 32-40 frames went
-    /// untracked).
-    niced: bool,
     /// `source.kind = "external"`: the outside publisher's stream (no
     /// camera-reader runs).
     external: Option<ExternalStream>,
@@ -298,7 +291,11 @@ impl Supervisor {
                 }
             }
         }
-        let nice = self.config.service(kind).nice.filter(|_| self.niced);
+        let nice = self
+            .config
+            .service(kind)
+            .nice
+            .filter(|_| self.slam_has_tracked());
         let svc = self.svc(kind);
         let program = svc.program.clone();
         match spawn(&program, &args, nice) {
@@ -343,6 +340,16 @@ impl Supervisor {
         Ok(())
     }
 
+    /// The SLAM has tracked a frame (in this run or, resumed, before it).
+    /// From then on services run at their configured niceness
+    /// (`services.*.nice`); until then at the supervisor's: the first
+    /// segmenter masks are what every stage waits for at the start, and a
+    /// niced segmenter on a busy machine took 0.5 s for them (at 60 fps with
+    /// two busy processes the first 32-40 frames went untracked).
+    fn slam_has_tracked(&self) -> bool {
+        !self.recent_tracked.rows.is_empty()
+    }
+
     /// Every running service with a `nice` key gets it.
     fn apply_niceness(&self) {
         for svc in &self.services {
@@ -380,10 +387,7 @@ impl Supervisor {
             .and_then(|p| p.route)
             .map(|r| r.as_str())
             .unwrap_or("none");
-        if !self.niced && state.is_some_and(|s| s.is_tracked()) {
-            self.niced = true;
-            self.apply_niceness();
-        }
+        let first_tracked = !self.slam_has_tracked() && state.is_some_and(|s| s.is_tracked());
         // A skipped (bad) frame was not tracked: it has no opinion on keyframes.
         if state != Some(TrackState::Skipped) {
             self.router.on_track(t.next_needs_keyframe != 0);
@@ -411,7 +415,11 @@ impl Supervisor {
             stamps: t.stamps,
             track_received_ns: received,
             note: pending.map(|p| p.note).unwrap_or_default(),
-        })
+        })?;
+        if first_tracked {
+            self.apply_niceness();
+        }
+        Ok(())
     }
 
     /// Real time: a worker will not make masks for `h.seq` (the frame was
@@ -993,8 +1001,6 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
         status_dirty: true,
         fatal: None,
         last_progress: Instant::now(),
-        // A resumed run whose SLAM had tracked: niced from the start.
-        niced: old_rows.iter().any(FrameRow::is_tracked),
         recent_tracked: RecentTracked::from_rows(&old_rows),
         external: (config.source.kind == SourceKind::External).then(ExternalStream::default),
         config,

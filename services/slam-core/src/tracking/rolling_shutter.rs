@@ -1,6 +1,7 @@
 //! Rolling-shutter correction: keypoints moved to the middle row's instant
-//! with the motion model's estimate, and the pose re-optimised once the
-//! frame's own pose is known.
+//! with the motion model's estimate (for matching), then the pose and the
+//! camera's motion during the readout optimised together once the matches
+//! are known, and the keypoints moved again with that motion.
 
 use nalgebra::Isometry3;
 
@@ -9,7 +10,9 @@ use crate::features::orb::KeyPoint;
 use crate::frame::Frame;
 use crate::map::Map;
 use crate::matcher::matched_pairs;
-use crate::optimizer::pose::{is_finite_pose, optimize_pose, renormalized};
+use crate::optimizer::pose::{
+    is_finite_pose, optimize_pose_and_twist, pose_at_row, renormalized, Twist, TwistPrior,
+};
 
 impl Tracking {
     /// Rolling shutter: row y is exposed `readout_s * (y - h/2) / h` seconds
@@ -77,11 +80,14 @@ impl Tracking {
             .then(|| (renormalized(&(last * first.inverse())), span))
     }
 
-    /// Second pass of the rolling-shutter correction once the frame's pose
-    /// is known: the motion from two frames back to this one is a frame
-    /// more recent than what the first pass had. Keypoints are corrected
-    /// again from their raw positions and the pose re-optimised on the same
-    /// matches. None when it does not apply or the optimisation fails.
+    /// Second pass of the rolling-shutter correction once the frame's
+    /// matches are known: the pose and the camera's motion during the
+    /// readout are optimised together on the raw (uncorrected) keypoints,
+    /// each seen from its own row's pose, with the motion from two frames
+    /// back to this one as the prior (a frame after a loss has none: the
+    /// motion then comes from its own rows alone, with a prior of no
+    /// motion). The keypoints are then corrected again with the motion
+    /// found. None when it does not apply or the optimisation fails.
     pub(crate) fn refine_for_shutter(
         &self,
         map: &Map,
@@ -91,18 +97,62 @@ impl Tracking {
         matched: &[Option<usize>],
         timestamp: f64,
     ) -> Option<Isometry3<f64>> {
-        let motion = self.shutter_motion(Some((timestamp, *pose_cw)))?;
+        let (motion, span) = self.shutter_motion(Some((timestamp, *pose_cw)))?;
+        let prior = TwistPrior {
+            twist: twist_of(&motion, span),
+            sigma_rotation: SIGMA_ROTATION,
+            sigma_velocity: SIGMA_VELOCITY,
+        };
         frame.un.clone_from(&raw.0);
         frame.depth.clone_from(&raw.1);
-        let height = frame.height;
-        self.undo_rolling_shutter(&frame.kps, &mut frame.un, &mut frame.depth, height, motion);
         let ids = matched_pairs(matched);
-        let (pose, inlier) =
-            optimize_pose(&self.camera, pose_cw, &self.observations(map, frame, &ids));
+        let observations = self.observations(map, frame, &ids);
+        let dts: Vec<f64> = ids
+            .iter()
+            .map(|&(k, _)| self.row_delay(frame.kps[k].y, frame.height))
+            .collect();
+        let (pose, twist, inlier) =
+            optimize_pose_and_twist(&self.camera, pose_cw, &prior, &observations, &dts);
         let n = inlier.iter().filter(|&&b| b).count();
-        let finite = is_finite_pose(&pose);
+        let finite = is_finite_pose(&pose) && twist.iter().all(|x| x.is_finite());
+        let height = frame.height;
+        let motion = if finite { twist } else { prior.twist };
+        self.undo_rolling_shutter(
+            &frame.kps,
+            &mut frame.un,
+            &mut frame.depth,
+            height,
+            (motion_of(&motion), 1.0),
+        );
         (n >= self.params.min_inliers && finite).then_some(pose)
     }
+
+    /// Seconds from the middle row's exposure to row `y`'s.
+    fn row_delay(&self, y: f32, height: usize) -> f64 {
+        let h = height as f64;
+        self.camera.readout_s * (y as f64 - h / 2.0) / h
+    }
+}
+
+/// How sure the motion model is of the camera's motion during a readout
+/// (rad/s, m/s): it is the motion between frames, and a hand-held camera
+/// changes its turn rate within one. Looser priors let the rows' own
+/// evidence lead, but on fr1_rpy (every frame, and every 2nd and 3rd) 0.5-3
+/// rad/s came out worse than 0.1 (docs/design.md, "Rolling shutter").
+const SIGMA_ROTATION: f64 = 0.1;
+const SIGMA_VELOCITY: f64 = 0.05;
+
+/// The twist per second of `motion` (camera from camera) over `span` seconds.
+fn twist_of(motion: &Isometry3<f64>, span: f64) -> Twist {
+    let w = motion.rotation.scaled_axis() / span;
+    let v = motion.translation.vector / span;
+    Twist::new(w.x, w.y, w.z, v.x, v.y, v.z)
+}
+
+/// The motion of one second at `twist`, for [`Tracking::undo_rolling_shutter`]
+/// with a span of one second.
+fn motion_of(twist: &Twist) -> Isometry3<f64> {
+    pose_at_row(&Isometry3::identity(), twist, 1.0)
 }
 
 #[cfg(test)]

@@ -388,7 +388,10 @@ impl FrameJob<'_> {
                 .into_iter()
                 .zip(visible)
                 .map(|(placement, drawn)| ObjectRecord {
-                    placement,
+                    placement: Placement {
+                        depth_m: drawn.depth_m,
+                        ..placement
+                    },
                     visible_px: drawn.visible_px,
                     unoccluded_px: drawn.unoccluded_px,
                 })

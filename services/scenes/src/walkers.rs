@@ -129,8 +129,10 @@ pub enum Occlusion {
     /// shows only what sticks out of it (a head above a desk).
     Scene,
     /// People pass between the camera and the scene: always drawn whole
-    /// (cut only by the image border and nearer people). The depth channel
-    /// holds the person's distance even where the scene behind was nearer.
+    /// (cut only by the image border and nearer people), in front of what
+    /// they cover: the depth channel holds the person's distance, or where
+    /// that is behind the nearest surface it covers, a little in front of
+    /// that surface (`composite::IN_FRONT`).
     None,
 }
 

@@ -34,8 +34,8 @@ use crate::features::orb::hamming;
 use crate::frame::Frame;
 
 /// What the check looks for (README "Motion check" has the figures: the
-/// static shared sequence keeps 99.5 % of its features and its ATE; a box
-/// carried through it is found in 75 % of the frames, short of the
+/// static shared sequence keeps 99.76 % of its features and its ATE; a box
+/// carried through it is found in 76.5 % of the frames, short of the
 /// issue's 80 %).
 #[derive(Debug, Clone, PartialEq)]
 pub struct MotionCheckParams {
@@ -119,6 +119,8 @@ struct PastFrame {
     frame: Frame,
     pose_cw: Isometry3<f64>,
     depth: NearestDepth,
+    /// How fast the camera turned then (rad/s; 0 when not known).
+    turn_rate: f64,
 }
 
 /// A depth image at a quarter of its resolution, each cell the nearest
@@ -130,10 +132,30 @@ struct NearestDepth {
 }
 
 const CELL: usize = 4;
-/// Cells each side of a lookup (5x5 cells, 20 px): TUM's depth and colour
-/// images are up to 20 ms apart, which in a fast turn moves the depth
-/// image several cells against the pose of the colour image.
+/// Cells each side of a lookup (5x5 cells, 20 px) at least: depth noise
+/// and pose error at an edge.
 const WINDOW: usize = 2;
+/// How far apart in time a depth image and the colour image whose pose it
+/// is looked up with are (s): in the shared fr1 sequence's associations
+/// the depth image comes 0-17 ms after the colour one, 13 ms at the 90th
+/// percentile. In a turn that moves the depth image against the colour
+/// pose by `fx * turn rate * this` pixels (fr1_rpy at 2.5 rad/s: 17 px),
+/// so the lookup window grows by that: with a fixed 5x5 the static shared
+/// sequence's fast turns looked like free space being filled (0.51 % of
+/// its features dropped, 0.24 % with the growing window). A window much
+/// larger than that hides movers over surfaces that slope towards the
+/// camera (the nearest surface in a wide window is nearer than the one
+/// behind the mover): 20 ms, 100 of the carried box's 132 frames found; 13
+/// ms, 101; 10 ms, 102 but 0.26 % of the static features.
+const DEPTH_OFFSET_S: f64 = 0.013;
+
+/// Cells each side of a lookup in a depth image taken while the camera
+/// turned at `then` (rad/s), for a point of a frame taken while it turned at
+/// `now`: the two misregistrations add up.
+fn lookup_window(camera: &Camera, now: f64, then: f64) -> usize {
+    let px = camera.fx * (now + then) * DEPTH_OFFSET_S;
+    WINDOW + (px / CELL as f64).ceil().clamp(0.0, 8.0) as usize
+}
 
 impl NearestDepth {
     fn new(depth: &[u16], width: usize, height: usize, depth_scale: f64) -> Self {
@@ -160,10 +182,60 @@ impl NearestDepth {
         }
     }
 
-    /// The nearest surface seen within `WINDOW` cells of the (raw) pixel,
-    /// when two thirds of those cells saw one: a foreground edge a pose error
-    /// away still counts, so edges do not look like free space.
-    fn nearest_around(&self, (u, v): (f64, f64)) -> Option<f64> {
+    /// For every cell, the nearest surface seen within `window` cells of
+    /// it, where two thirds of those cells saw one (else 0): a foreground
+    /// edge a pose error away still counts, so edges do not look like free
+    /// space. Two passes (rows, then columns) of running minima and counts.
+    fn around(&self, window: usize) -> Around {
+        let (w, h) = (self.width, self.height);
+        let mut row_min = vec![f32::INFINITY; w * h];
+        let mut row_seen = vec![0u16; w * h];
+        for y in 0..h {
+            let row = &self.metres[y * w..(y + 1) * w];
+            for x in 0..w {
+                let (mut nearest, mut seen) = (f32::INFINITY, 0);
+                for &m in &row[x.saturating_sub(window)..(x + window + 1).min(w)] {
+                    if m > 0.0 {
+                        seen += 1;
+                        nearest = nearest.min(m);
+                    }
+                }
+                row_min[y * w + x] = nearest;
+                row_seen[y * w + x] = seen;
+            }
+        }
+        let cells = ((2 * window + 1) * (2 * window + 1)) as u32;
+        let mut metres = vec![0f32; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let (mut nearest, mut seen) = (f32::INFINITY, 0u32);
+                for yy in y.saturating_sub(window)..(y + window + 1).min(h) {
+                    nearest = nearest.min(row_min[yy * w + x]);
+                    seen += row_seen[yy * w + x] as u32;
+                }
+                if seen * 3 >= cells * 2 {
+                    metres[y * w + x] = nearest;
+                }
+            }
+        }
+        Around {
+            width: w,
+            height: h,
+            metres,
+        }
+    }
+}
+
+/// [`NearestDepth::around`]: per cell, the nearest surface seen around it.
+struct Around {
+    width: usize,
+    height: usize,
+    metres: Vec<f32>,
+}
+
+impl Around {
+    /// The nearest surface seen around the (raw) pixel, if enough was seen.
+    fn nearest_at(&self, (u, v): (f64, f64)) -> Option<f64> {
         if !(u >= 0.0 && v >= 0.0) {
             return None;
         }
@@ -171,18 +243,8 @@ impl NearestDepth {
         if cx >= self.width || cy >= self.height {
             return None;
         }
-        let (mut nearest, mut seen) = (f32::INFINITY, 0);
-        for y in cy.saturating_sub(WINDOW)..(cy + WINDOW + 1).min(self.height) {
-            for x in cx.saturating_sub(WINDOW)..(cx + WINDOW + 1).min(self.width) {
-                let m = self.metres[y * self.width + x];
-                if m > 0.0 {
-                    seen += 1;
-                    nearest = nearest.min(m);
-                }
-            }
-        }
-        let cells = (2 * WINDOW + 1) * (2 * WINDOW + 1);
-        (seen * 3 >= cells * 2).then_some(nearest as f64)
+        let m = self.metres[cy * self.width + cx];
+        (m > 0.0).then_some(m as f64)
     }
 }
 
@@ -266,22 +328,19 @@ impl MotionCheck {
         else {
             return Vec::new();
         };
+        let turn = self.turn_rate(pose_cw, timestamp);
         let now_to_past = past.pose_cw * pose_cw.inverse();
-        let evidence = keypoint_evidence(frame, pose_cw, past, camera, p);
+        let around = past
+            .depth
+            .around(lookup_window(camera, turn, past.turn_rate));
+        let evidence = keypoint_evidence(frame, pose_cw, past, &around, camera, p);
         // Two kinds of evidence, grouped apart: keypoints seen again
         // elsewhere (shifted), and keypoints now where the older frame saw
         // free space (no shift; an object that entered or moved onto it).
         let mut out = clusters(&evidence.moved, &evidence.matched_at, p);
         out.extend(clusters(&evidence.appeared, &evidence.seen_at, p));
         let cells = &self.cell_pixels.as_ref().expect("computed above").1;
-        out.extend(dense_regions(
-            now,
-            cells,
-            &past.depth,
-            &now_to_past,
-            camera,
-            p,
-        ));
+        out.extend(dense_regions(now, cells, &around, &now_to_past, camera, p));
         // The depth warp also against a frame half as old: it saw more of
         // what the camera sees now (a mover that came in with a turn or at
         // the border).
@@ -295,18 +354,37 @@ impl MotionCheck {
             // Keypoints seen again elsewhere in it too: a mover that came
             // in at the border in the last 0.2 s is not in the older frame
             // (carried box: 94 -> 99 of 132 frames found; +1.4 ms a frame).
-            let e = keypoint_evidence(frame, pose_cw, recent, camera, p);
+            let around = recent
+                .depth
+                .around(lookup_window(camera, turn, recent.turn_rate));
+            let e = keypoint_evidence(frame, pose_cw, recent, &around, camera, p);
             out.extend(clusters(&e.moved, &e.matched_at, p));
             out.extend(dense_regions(
                 now,
                 cells,
-                &recent.depth,
+                &around,
                 &now_to_recent,
                 camera,
                 p,
             ));
         }
         out
+    }
+
+    /// How fast the camera turns at a frame tracked at `pose_cw` (rad/s):
+    /// against the newest kept frame when it is at most 0.1 s older, else
+    /// not known (0).
+    fn turn_rate(&self, pose_cw: &Isometry3<f64>, timestamp: f64) -> f64 {
+        self.history
+            .back()
+            .map(|f| {
+                (
+                    f.pose_cw.rotation.angle_to(&pose_cw.rotation),
+                    timestamp - f.timestamp,
+                )
+            })
+            .filter(|&(_, dt)| dt > 1e-3 && dt <= 0.1)
+            .map_or(0.0, |(angle, dt)| angle / dt)
     }
 
     /// Keeps `frame` (tracked at `pose_cw`, with its raw depth image) for
@@ -328,11 +406,13 @@ impl MotionCheck {
             // Time went back (a new pass of a sequence): start over.
             self.history.clear();
         }
+        let turn_rate = self.turn_rate(pose_cw, timestamp);
         self.history.push_back(PastFrame {
             timestamp,
             frame: frame.clone(),
             pose_cw: *pose_cw,
             depth,
+            turn_rate,
         });
         let gap = self.params.gap_s;
         while self.history.len() >= 2 && timestamp - self.history[1].timestamp >= gap {
@@ -356,6 +436,7 @@ fn keypoint_evidence(
     frame: &Frame,
     pose_cw: &Isometry3<f64>,
     past: &PastFrame,
+    around: &Around,
     camera: &Camera,
     p: &MotionCheckParams,
 ) -> KeypointEvidence {
@@ -380,7 +461,7 @@ fn keypoint_evidence(
         }
         let (pu, pv) = camera.project(&there.coords);
         let allowed = p.min_move_m + p.move_per_m2 * z * z;
-        if let Some(seen) = past.depth.nearest_around(camera.distort(pu, pv)) {
+        if let Some(seen) = around.nearest_at(camera.distort(pu, pv)) {
             seen_at.push(Vector2::new(u, v));
             if seen - there.z > allowed {
                 appeared.push(Moved {
@@ -451,7 +532,7 @@ fn cell_centres(camera: &Camera, width: usize, height: usize) -> Vec<(f64, f64)>
 fn dense_regions(
     now: &NearestDepth,
     cells: &[(f64, f64)],
-    past: &NearestDepth,
+    past: &Around,
     now_to_past: &Isometry3<f64>,
     camera: &Camera,
     p: &MotionCheckParams,
@@ -469,7 +550,7 @@ fn dense_regions(
             continue;
         }
         let (pu, pv) = camera.project(&there.coords);
-        if let Some(seen) = past.nearest_around(camera.distort(pu, pv)) {
+        if let Some(seen) = past.nearest_at(camera.distort(pu, pv)) {
             *flag = seen - there.z > p.min_move_m + p.move_per_m2 * z * z;
         }
     }
@@ -662,7 +743,7 @@ mod tests {
             dense_regions(
                 &wall_with_square(now),
                 &cells,
-                &wall_with_square(past),
+                &wall_with_square(past).around(WINDOW),
                 &Isometry3::identity(),
                 &camera,
                 &p,

@@ -1,16 +1,36 @@
 //! People must never close a loop: on the shared sequence with people
 //! synthesised over it (passing in front of the scene, and hidden by it:
-//! `just synth-people`'s sequences), `slam-bench --loop-closing` accepts no
-//! loop, with the ground-truth masks and without any mask (the people's
-//! features then reach the map: a person seen at two places matches a
-//! consistent rigid transform, which the spread test refuses); monocular
-//! too (a similarity, its inliers judged by reprojection).
+//! `just synth-people`'s sequences), with the ground-truth masks and
+//! without any mask (the people's features then reach the map: a person
+//! seen at two places matches a consistent rigid transform, which the
+//! spread test refuses), and monocular too (a similarity, its inliers
+//! judged by reprojection), every loop `slam-bench --loop-closing` accepts
+//! must be a loop on the room: it brings the two keyframes it joins closer
+//! to how the ground truth says they stand (a loop on people joins them by
+//! where a person was, which has nothing to do with the camera's drift).
+//! fr1_rpy turns on the spot, so the camera does see the same static room
+//! again, and without masks the people drag the map off: measured after
+//! the joint rolling-shutter estimate came in, two such loops were closed
+//! (people in front: 110 inliers, the pair 0.337 m / 13.3 deg off the
+//! truth before the correction, 0.010 m / 0.6 deg after; people hidden: 34
+//! inliers, none of them on a person's pixels, 0.279 m / 7.4 deg before,
+//! 0.122 m / 3.2 deg after). Before that build none was accepted here.
 
 mod common;
 use common::*;
+use std::path::Path;
 use std::process::Command;
 
-fn loops_closed(dataset: &std::path::Path, masks: bool, monocular: bool) -> (usize, String) {
+use nalgebra::Isometry3;
+use slam_core::io::trajectory::Trajectory;
+
+/// The loops `slam-bench --loop-closing` closes on `dataset`, as the
+/// timestamps of the two keyframes each joins, with the summary line.
+fn loops_closed(
+    dataset: &Path,
+    masks: bool,
+    monocular: bool,
+) -> (Vec<(f64, f64)>, String, Option<f64>) {
     let mut cmd = Command::new(bin_dir().join("slam-bench"));
     cmd.arg(dataset).arg("--loop-closing");
     if masks {
@@ -35,17 +55,56 @@ fn loops_closed(dataset: &std::path::Path, masks: bool, monocular: bool) -> (usi
         .find(|l| l.starts_with("loop closing:"))
         .unwrap_or_else(|| panic!("no loop line in {stdout}"))
         .to_string();
-    let n = line
-        .split_whitespace()
-        .nth(2)
-        .and_then(|n| n.parse().ok())
-        .unwrap();
-    (n, line)
+    // "  loop: keyframe 20 (t 1305031233.662) with 9 (t 1305031231.626), ..."
+    let stamps = stdout
+        .lines()
+        .filter(|l| l.trim_start().starts_with("loop: keyframe"))
+        .map(|l| {
+            let t: Vec<f64> = l
+                .split("(t ")
+                .skip(1)
+                .map(|s| s.split(')').next().unwrap().parse().unwrap())
+                .collect();
+            (t[0], t[1])
+        })
+        .collect();
+    // Monocular: the Sim(3) alignment's scale ("..., scale 2.4906)").
+    let scale = stdout
+        .lines()
+        .find(|l| l.starts_with("ATE rmse") && l.contains("scale"))
+        .and_then(|l| l.split("scale ").nth(1))
+        .and_then(|s| s.trim_end_matches(')').split(')').next())
+        .and_then(|s| s.parse().ok());
+    (stamps, line, scale)
+}
+
+/// How far the corrected trajectory's relative pose between `a` and `b`
+/// is from the ground truth's (metres, degrees).
+fn relative_error(
+    truth: &Trajectory,
+    corrected: &Trajectory,
+    (a, b): (f64, f64),
+    scale: f64,
+) -> (f64, f64) {
+    let pose = |t: &Trajectory, at: f64| -> Isometry3<f64> {
+        t.interpolate(at, 0.02)
+            .unwrap_or_else(|| panic!("no pose at {at}"))
+    };
+    let relative = |t: &Trajectory, s: f64| {
+        let r = pose(t, a).inverse() * pose(t, b);
+        Isometry3::from_parts((r.translation.vector * s).into(), r.rotation)
+    };
+    let error = relative(truth, 1.0).inverse() * relative(corrected, scale);
+    (
+        error.translation.vector.norm(),
+        error.rotation.angle().to_degrees(),
+    )
 }
 
 #[test]
 fn people_never_close_a_loop() {
     let dir = scratch("no-false-loops");
+    let truth = Trajectory::load_tum(&shared_tum().join("groundtruth.txt")).unwrap();
     for occlusion in ["none", "scene"] {
         let seq = dir.join(format!("people-{occlusion}"));
         let o = Command::new(dynslam())
@@ -57,11 +116,33 @@ fn people_never_close_a_loop() {
             .unwrap();
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         for (masks, monocular) in [(true, false), (false, false), (true, true), (false, true)] {
-            let (n, line) = loops_closed(&seq, masks, monocular);
+            let (loops, line, scale) = loops_closed(&seq, masks, monocular);
             eprintln!(
                 "people ({occlusion} occlusion), masks {masks}, monocular {monocular}: {line}"
             );
-            assert_eq!(n, 0, "a loop closed on people: {line}");
+            if loops.is_empty() {
+                continue;
+            }
+            let live = Trajectory::load_tum(&seq.join("bench_trajectory.txt")).unwrap();
+            let corrected =
+                Trajectory::load_tum(&seq.join("bench_trajectory.loop_corrected.txt")).unwrap();
+            let scale = scale.unwrap_or(1.0);
+            for pair in loops {
+                let (m0, deg0) = relative_error(&truth, &live, pair, scale);
+                let (m, deg) = relative_error(&truth, &corrected, pair, scale);
+                eprintln!(
+                    "  loop between {:.3} and {:.3}: the pair {m0:.3} m / {deg0:.2} deg off the ground truth before, {m:.3} m / {deg:.2} deg after",
+                    pair.0, pair.1
+                );
+                assert!(
+                    m < m0 && deg < deg0,
+                    "a false loop ({occlusion} occlusion, masks {masks}, monocular {monocular}): \
+                     keyframes at {:.3} and {:.3} moved away from the ground truth \
+                     ({m0:.3} m / {deg0:.2} deg -> {m:.3} m / {deg:.2} deg)",
+                    pair.0,
+                    pair.1
+                );
+            }
         }
     }
     let _ = std::fs::remove_dir_all(&dir);

@@ -1,7 +1,7 @@
 //! Rolling-shutter correction: keypoints moved to the middle row's instant
-//! with the motion model's estimate (for matching), then the pose and the
-//! camera's motion during the readout optimised together once the matches
-//! are known, and the keypoints moved again with that motion.
+//! with the motion model's estimate (for matching), then (RGB-D) the pose
+//! and the camera's motion during the readout optimised together once the
+//! matches are known, and the keypoints moved again with that motion.
 
 use nalgebra::Isometry3;
 
@@ -11,7 +11,8 @@ use crate::frame::Frame;
 use crate::map::Map;
 use crate::matcher::matched_pairs;
 use crate::optimizer::pose::{
-    is_finite_pose, optimize_pose_and_twist, pose_at_row, renormalized, Twist, TwistPrior,
+    is_finite_pose, optimize_pose, optimize_pose_and_twist, pose_at_row, renormalized, Twist,
+    TwistPrior,
 };
 
 impl Tracking {
@@ -81,13 +82,16 @@ impl Tracking {
     }
 
     /// Second pass of the rolling-shutter correction once the frame's
-    /// matches are known: the pose and the camera's motion during the
-    /// readout are optimised together on the raw (uncorrected) keypoints,
-    /// each seen from its own row's pose, with the motion from two frames
-    /// back to this one as the prior (a frame after a loss has none: the
-    /// motion then comes from its own rows alone, with a prior of no
-    /// motion). The keypoints are then corrected again with the motion
-    /// found. None when it does not apply or the optimisation fails.
+    /// matches are known. With depth, the pose and the camera's motion
+    /// during the readout are optimised together on the raw (uncorrected)
+    /// keypoints, each seen from its own row's pose, with the motion from two
+    /// frames back to this one as the prior, and the keypoints are corrected
+    /// again with the motion found. A monocular frame keeps that prior's
+    /// motion: corrected with it, the pose is optimised rigidly (without
+    /// depth one frame hardly says how the camera moved along its axis; the
+    /// joint estimate took the rendered room's monocular ATE from 0.0072 to
+    /// 0.0097 m). None when it does not apply (no motion model: the frame
+    /// before was lost) or the optimisation fails.
     pub(crate) fn refine_for_shutter(
         &self,
         map: &Map,
@@ -98,33 +102,48 @@ impl Tracking {
         timestamp: f64,
     ) -> Option<Isometry3<f64>> {
         let (motion, span) = self.shutter_motion(Some((timestamp, *pose_cw)))?;
-        let prior = TwistPrior {
-            twist: twist_of(&motion, span),
-            sigma_rotation: SIGMA_ROTATION,
-            sigma_velocity: SIGMA_VELOCITY,
-        };
         frame.un.clone_from(&raw.0);
         frame.depth.clone_from(&raw.1);
-        let ids = matched_pairs(matched);
-        let observations = self.observations(map, frame, &ids);
-        let dts: Vec<f64> = ids
-            .iter()
-            .map(|&(k, _)| self.row_delay(frame.kps[k].y, frame.height))
-            .collect();
-        let (pose, twist, inlier) =
-            optimize_pose_and_twist(&self.camera, pose_cw, &prior, &observations, &dts);
-        let n = inlier.iter().filter(|&&b| b).count();
-        let finite = is_finite_pose(&pose) && twist.iter().all(|x| x.is_finite());
         let height = frame.height;
-        let motion = if finite { twist } else { prior.twist };
-        self.undo_rolling_shutter(
-            &frame.kps,
-            &mut frame.un,
-            &mut frame.depth,
-            height,
-            (motion_of(&motion), 1.0),
-        );
-        (n >= self.params.min_inliers && finite).then_some(pose)
+        let ids = matched_pairs(matched);
+        let (pose, inlier) = if self.params.is_monocular() {
+            self.undo_rolling_shutter(
+                &frame.kps,
+                &mut frame.un,
+                &mut frame.depth,
+                height,
+                (motion, span),
+            );
+            optimize_pose(&self.camera, pose_cw, &self.observations(map, frame, &ids))
+        } else {
+            let prior = TwistPrior {
+                twist: twist_of(&motion, span),
+                sigma_rotation: SIGMA_ROTATION,
+                sigma_velocity: SIGMA_VELOCITY,
+            };
+            let dts: Vec<f64> = ids
+                .iter()
+                .map(|&(k, _)| self.row_delay(frame.kps[k].y, height))
+                .collect();
+            let observations = self.observations(map, frame, &ids);
+            let (pose, twist, inlier) =
+                optimize_pose_and_twist(&self.camera, pose_cw, &prior, &observations, &dts);
+            let twist = if twist.iter().all(|x| x.is_finite()) {
+                twist
+            } else {
+                prior.twist
+            };
+            self.undo_rolling_shutter(
+                &frame.kps,
+                &mut frame.un,
+                &mut frame.depth,
+                height,
+                (motion_of(&twist), 1.0),
+            );
+            (pose, inlier)
+        };
+        let n = inlier.iter().filter(|&&b| b).count();
+        (n >= self.params.min_inliers && is_finite_pose(&pose)).then_some(pose)
     }
 
     /// Seconds from the middle row's exposure to row `y`'s.

@@ -353,10 +353,22 @@ fn main() -> Result<()> {
             percentile(&detect, 99.0)
         );
         for (l, (correct, ba)) in system.loops().iter().zip(system.loop_correction_ms()) {
+            let stamp = |k| {
+                system
+                    .keyframe_timestamp(k)
+                    .map_or("?".to_string(), |t| format!("{t:.6}"))
+            };
             println!(
-                "  loop: keyframe {} with {}, {} inliers, corrected {:.3} m / {:.2} deg, \
+                "  loop: keyframe {} (t {}) with {} (t {}), {} inliers, corrected {:.3} m / {:.2} deg, \
                  scale {:.4} (correction {correct:.0} ms, global BA {ba:.0} ms)",
-                l.keyframe, l.matched, l.inliers, l.correction_m, l.correction_deg, l.scale
+                l.keyframe,
+                stamp(l.keyframe),
+                l.matched,
+                stamp(l.matched),
+                l.inliers,
+                l.correction_m,
+                l.correction_deg,
+                l.scale
             );
         }
     }

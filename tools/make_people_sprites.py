@@ -2,11 +2,14 @@
 
 Run once; its outputs are committed under assets/people/ (see assets/PROVENANCE.md):
 
-    python tools/make_people_sprites.py SCIKIT_IMAGE_WHEEL YOLOV8N_SEG_F32.onnx assets/people
+    python tools/make_people_sprites.py YOLOV8N_SEG_F32.onnx assets/people WHEEL [WHEEL ...]
 
-Sources (inside the PyPI wheel scikit-image==0.26.0, skimage/data/):
-  astronaut.png  Eileen Collins, NASA, public domain
-  camera.png     man with a camera, CC0 (photographer Lav Varshney)
+Each source photo is read from the wheel given that holds it (a source no
+given wheel holds is skipped, so one wheel remakes only its own cut-outs):
+  astronaut.png     Eileen Collins, NASA, public domain (scikit-image==0.26.0, skimage/data/)
+  camera.png        man with a camera, CC0, photographer Lav Varshney (same wheel)
+  grace_hopper.jpg  Rear Admiral Grace Hopper, official U.S. Navy photograph,
+                    public domain (matplotlib==3.11.2, matplotlib/mpl-data/sample_data/)
 
 Mask: the YOLOv8n-seg person mask (320 input, prototypes upsampled to full
 resolution) seeds OpenCV's GrabCut, which moves the border onto the image's
@@ -25,7 +28,11 @@ import onnxruntime as ort
 from PIL import Image
 
 SIZE = 320  # the shared model's fixed input size
-SOURCES = {"astronaut": "skimage/data/astronaut.png", "cameraman": "skimage/data/camera.png"}
+SOURCES = {
+    "astronaut": "skimage/data/astronaut.png",
+    "cameraman": "skimage/data/camera.png",
+    "hopper": "matplotlib/mpl-data/sample_data/grace_hopper.jpg",
+}
 HEIGHT = 400  # sprite height in pixels after cropping
 
 
@@ -74,10 +81,15 @@ def refine(rgb, seed):
 
 
 def main():
-    wheel, model, out = sys.argv[1:4]
-    z = zipfile.ZipFile(wheel)
+    if len(sys.argv) < 4:
+        sys.exit(__doc__)
+    model, out, wheels = sys.argv[1], sys.argv[2], [zipfile.ZipFile(w) for w in sys.argv[3:]]
     session = ort.InferenceSession(model, providers=["CPUExecutionProvider"])
     for name, member in SOURCES.items():
+        z = next((z for z in wheels if member in z.namelist()), None)
+        if z is None:
+            print(f"{name}: {member} is in none of the wheels given, skipped")
+            continue
         rgb = np.asarray(Image.open(io.BytesIO(z.read(member))).convert("RGB"))
         mask = refine(rgb, person_mask(session, rgb))
         ys, xs = np.nonzero(mask)

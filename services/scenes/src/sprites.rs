@@ -1,7 +1,7 @@
 //! Cut-outs of real people with binary alpha masks, embedded in the binary
 //! so that `dynslam synth` and the default run need no download. Made by
-//! `tools/make_people_sprites.py` from photos in the scikit-image wheel;
-//! provenance and licences in `assets/PROVENANCE.md`.
+//! `tools/make_people_sprites.py` from photos in the scikit-image and
+//! matplotlib wheels; provenance and licences in `assets/PROVENANCE.md`.
 
 use image::RgbaImage;
 
@@ -50,7 +50,7 @@ impl Sprite {
     }
 }
 
-const PEOPLE: [(&str, &[u8]); 2] = [
+const PEOPLE: [(&str, &[u8]); 3] = [
     (
         "astronaut",
         include_bytes!("../../../assets/people/astronaut.png"),
@@ -59,6 +59,7 @@ const PEOPLE: [(&str, &[u8]); 2] = [
         "cameraman",
         include_bytes!("../../../assets/people/cameraman.png"),
     ),
+    ("hopper", include_bytes!("../../../assets/people/hopper.png")),
 ];
 
 /// A carried cardboard box (a mover that no class list names, for the

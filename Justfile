@@ -177,8 +177,8 @@ synth-people: build
     #!/usr/bin/env bash
     set -euo pipefail
     synth_once() {
-        # objects.json records what a synth wrote; one without "unoccluded_px" is from an older synth.
-        if ! grep -qs '"unoccluded_px"' "$1/objects.json"; then
+        # objects.json records what a synth wrote; one of another synth_version is from an older synth.
+        if ! grep -qs '"synth_version": 2,' "$1/objects.json"; then
             rm -rf "$1"
             ./target/release/dynslam synth "{{tum}}" "$1" --objects 3 --seed 5 --occlusion "$2" --behaviour "$3"
         fi

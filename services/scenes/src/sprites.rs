@@ -59,7 +59,10 @@ const PEOPLE: [(&str, &[u8]); 3] = [
         "cameraman",
         include_bytes!("../../../assets/people/cameraman.png"),
     ),
-    ("hopper", include_bytes!("../../../assets/people/hopper.png")),
+    (
+        "hopper",
+        include_bytes!("../../../assets/people/hopper.png"),
+    ),
 ];
 
 /// A carried cardboard box (a mover that no class list names, for the

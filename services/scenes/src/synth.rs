@@ -59,11 +59,19 @@ pub struct SceneRecord {
     pub input: PathBuf,
     pub options: WalkOptions,
     pub sprites: Vec<&'static str>,
+    /// What drew it ([`SYNTH_VERSION`]): a cached sequence of another
+    /// version is made again (`just synth-people`).
+    pub synth_version: u32,
     pub sprite_provenance: &'static str,
     pub class: &'static str,
     pub walkers: Vec<Walker>,
     pub frames: Vec<FrameRecord>,
 }
+
+/// Bumped when the same options draw different frames: 2, a third person
+/// cut-out and people drawn without scene occlusion in front of what they
+/// cover in depth too.
+pub const SYNTH_VERSION: u32 = 2;
 
 #[derive(Debug, Clone, Serialize)]
 pub struct FrameRecord {
@@ -190,7 +198,8 @@ pub fn synthesize(
         input: input.to_path_buf(),
         options: options.clone(),
         sprites: sprites.iter().map(|s| s.name).collect(),
-        sprite_provenance: "assets/PROVENANCE.md: scikit-image 0.26.0 sample data (astronaut: NASA, public domain; camera: CC0)",
+        synth_version: SYNTH_VERSION,
+        sprite_provenance: "assets/PROVENANCE.md: scikit-image 0.26.0 sample data (astronaut: NASA, public domain; camera: CC0), matplotlib 3.11.2 sample data (grace_hopper: U.S. Navy, public domain)",
         class: "person",
         walkers,
         frames: frames_out,

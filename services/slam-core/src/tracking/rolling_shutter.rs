@@ -33,12 +33,10 @@ impl Tracking {
         height: usize,
         (velocity, span): (Isometry3<f64>, f64),
     ) {
-        let readout = self.camera.readout_s;
-        let h = height as f64;
         for ((k, p), d) in kps.iter().zip(un.iter_mut()).zip(depths.iter_mut()) {
             // Fraction of the inter-frame motion from the middle row to this one:
             // points in camera coordinates move as x(row) = R^f x(mid) + f t.
-            let f = readout * (k.y as f64 - h / 2.0) / h / span;
+            let f = self.row_delay(k.y, height) / span;
             let back = velocity.rotation.powf(-f);
             let seen = match d {
                 Some(z) => {

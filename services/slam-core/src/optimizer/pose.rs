@@ -155,14 +155,7 @@ fn refine(
             let Some((r, p)) = residual(cam, &pose, o) else {
                 continue;
             };
-            let e2 = chi2(&r, o);
-            let th = chi2_threshold(o.ur.is_some());
-            // Huber weight on the squared error.
-            let w = if robust && e2 > th {
-                (th / e2).sqrt()
-            } else {
-                1.0
-            } * o.info;
+            let w = weight(&r, o, robust);
             let [du, dv, dur] = projection_rows(cam, &p);
             let rows = [(pose_row(&du, &p), r.x), (pose_row(&dv, &p), r.y)];
             for (j, e) in rows
@@ -174,40 +167,65 @@ fn refine(
                 g += w * j * *e;
             }
         }
-        let mut improved = false;
-        for _ in 0..6 {
-            let mut hl = h;
-            for i in 0..6 {
-                hl[(i, i)] *= 1.0 + lambda;
-            }
-            let Some(delta) = hl
-                .cholesky()
-                .map(|c| c.solve(&g))
-                .filter(|d| d.iter().all(|x| x.is_finite()))
-            else {
-                lambda *= 10.0;
-                continue;
-            };
-            let step = Isometry3::from_parts(
-                Translation3::from(Vector3::new(delta[3], delta[4], delta[5])),
-                UnitQuaternion::from_scaled_axis(Vector3::new(delta[0], delta[1], delta[2])),
-            );
-            let candidate = renormalized(&(step * pose));
-            let c = cost(&candidate);
-            if c < current {
+        let step = damped_step(&h, &g, &mut lambda, &mut current, |delta| {
+            let candidate = renormalized(&(perturbation(delta.as_slice()) * pose));
+            (cost(&candidate), candidate)
+        });
+        match step {
+            Some((candidate, moved)) => {
                 pose = candidate;
-                current = c;
-                lambda = (lambda * 0.3).max(1e-7);
-                improved = delta.norm() > 1e-9;
-                break;
+                if !moved {
+                    break;
+                }
             }
-            lambda *= 10.0;
-        }
-        if !improved {
-            break;
+            None => break,
         }
     }
     pose
+}
+
+/// The left perturbation of a pose whose first six values `delta` are
+/// [omega, upsilon].
+fn perturbation(delta: &[f64]) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::from(Vector3::new(delta[3], delta[4], delta[5])),
+        UnitQuaternion::from_scaled_axis(Vector3::new(delta[0], delta[1], delta[2])),
+    )
+}
+
+/// One Levenberg-Marquardt step on the normal equations `h delta = g`:
+/// the damping `lambda` is raised until `apply(delta)` gives a lower cost
+/// than `current` (at most six tries), then lowered. Returns the improved
+/// state and whether it moved measurably, None when no try improved.
+fn damped_step<const N: usize, T>(
+    h: &nalgebra::SMatrix<f64, N, N>,
+    g: &nalgebra::SVector<f64, N>,
+    lambda: &mut f64,
+    current: &mut f64,
+    apply: impl Fn(&nalgebra::SVector<f64, N>) -> (f64, T),
+) -> Option<(T, bool)> {
+    for _ in 0..6 {
+        let mut hl = *h;
+        for i in 0..N {
+            hl[(i, i)] *= 1.0 + *lambda;
+        }
+        let Some(delta) = hl
+            .cholesky()
+            .map(|c| c.solve(g))
+            .filter(|d| d.iter().all(|x| x.is_finite()))
+        else {
+            *lambda *= 10.0;
+            continue;
+        };
+        let (c, candidate) = apply(&delta);
+        if c < *current {
+            *current = c;
+            *lambda = (*lambda * 0.3).max(1e-7);
+            return Some((candidate, delta.norm() > 1e-9));
+        }
+        *lambda *= 10.0;
+    }
+    None
 }
 
 /// The camera's motion during one frame's readout, per second: the rate of
@@ -362,13 +380,7 @@ fn refine_with_twist(
             let Some((r, [mid, q, turned])) = row_residual(cam, &pose, &twist, dt, o) else {
                 continue;
             };
-            let e2 = chi2(&r, o);
-            let th = chi2_threshold(o.ur.is_some());
-            let w = if robust && e2 > th {
-                (th / e2).sqrt()
-            } else {
-                1.0
-            } * o.info;
+            let w = weight(&r, o, robust);
             let [du, dv, dur] = projection_rows(cam, &q);
             let row_of = |d: &Vector3<f64>| -> Vector12 {
                 let mut j = Vector12::zeros();
@@ -398,39 +410,22 @@ fn refine_with_twist(
             h[(6 + i, 6 + i)] += information[i];
             g[6 + i] += information[i] * (prior.twist[i] - twist[i]);
         }
-        let mut improved = false;
-        for _ in 0..6 {
-            let mut hl = h;
-            for i in 0..12 {
-                hl[(i, i)] *= 1.0 + lambda;
-            }
-            let Some(delta) = hl
-                .cholesky()
-                .map(|c| c.solve(&g))
-                .filter(|d| d.iter().all(|x| x.is_finite()))
-            else {
-                lambda *= 10.0;
-                continue;
-            };
-            let step = Isometry3::from_parts(
-                Translation3::from(Vector3::new(delta[3], delta[4], delta[5])),
-                UnitQuaternion::from_scaled_axis(Vector3::new(delta[0], delta[1], delta[2])),
-            );
-            let candidate = renormalized(&(step * pose));
+        let step = damped_step(&h, &g, &mut lambda, &mut current, |delta| {
+            let candidate = renormalized(&(perturbation(delta.as_slice()) * pose));
             let candidate_twist = twist + delta.fixed_rows::<6>(6);
-            let c = cost(&candidate, &candidate_twist);
-            if c < current {
-                pose = candidate;
-                twist = candidate_twist;
-                current = c;
-                lambda = (lambda * 0.3).max(1e-7);
-                improved = delta.norm() > 1e-9;
-                break;
+            (
+                cost(&candidate, &candidate_twist),
+                (candidate, candidate_twist),
+            )
+        });
+        match step {
+            Some(((candidate, candidate_twist), moved)) => {
+                (pose, twist) = (candidate, candidate_twist);
+                if !moved {
+                    break;
+                }
             }
-            lambda *= 10.0;
-        }
-        if !improved {
-            break;
+            None => break,
         }
     }
     (pose, twist)
@@ -453,6 +448,19 @@ pub(crate) fn huber_cost(e2: f64, th: f64) -> f64 {
     } else {
         e2
     }
+}
+
+/// An observation's weight in the normal equations: its information,
+/// times the Huber kernel's weight on its squared error when `robust`.
+fn weight(r: &Vector3<f64>, o: &Observation, robust: bool) -> f64 {
+    let e2 = chi2(r, o);
+    let th = chi2_threshold(o.ur.is_some());
+    let huber = if robust && e2 > th {
+        (th / e2).sqrt()
+    } else {
+        1.0
+    };
+    huber * o.info
 }
 
 fn huber(e2: f64, o: &Observation, robust: bool) -> f64 {

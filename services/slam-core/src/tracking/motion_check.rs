@@ -185,7 +185,7 @@ impl NearestDepth {
     /// For every cell, the nearest surface seen within `window` cells of
     /// it, where two thirds of those cells saw one (else 0): a foreground
     /// edge a pose error away still counts, so edges do not look like free
-    /// space. Two passes (rows, then columns) of running minima and counts.
+    /// space. Two passes (rows, then columns) of window minima and counts.
     fn around(&self, window: usize) -> Around {
         let (w, h) = (self.width, self.height);
         let mut row_min = vec![f32::INFINITY; w * h];
@@ -288,18 +288,20 @@ impl MotionCheck {
         camera: &Camera,
     ) -> Vec<MovingRegion> {
         let now = NearestDepth::new(depth, frame.width, frame.height, camera.depth_scale);
-        let regions = self.regions(frame, &now, pose_cw, timestamp, camera);
-        self.remember(frame, now, pose_cw, timestamp);
+        let turn = self.turn_rate(pose_cw, timestamp);
+        let regions = self.regions(frame, &now, (pose_cw, turn), timestamp, camera);
+        self.remember(frame, now, (pose_cw, turn), timestamp);
         regions
     }
 
-    /// The regions of `frame` that move unlike the camera, against the
-    /// newest kept frame at least `gap_s` older; none until there is one.
+    /// The regions of `frame` (tracked at `pose_cw` while the camera turned
+    /// at `turn` rad/s) that move unlike the camera, against the newest
+    /// kept frame at least `gap_s` older; none until there is one.
     fn regions(
         &mut self,
         frame: &Frame,
         now: &NearestDepth,
-        pose_cw: &Isometry3<f64>,
+        (pose_cw, turn): (&Isometry3<f64>, f64),
         timestamp: f64,
         camera: &Camera,
     ) -> Vec<MovingRegion> {
@@ -328,7 +330,6 @@ impl MotionCheck {
         else {
             return Vec::new();
         };
-        let turn = self.turn_rate(pose_cw, timestamp);
         let now_to_past = past.pose_cw * pose_cw.inverse();
         let around = past
             .depth
@@ -387,15 +388,15 @@ impl MotionCheck {
             .map_or(0.0, |(angle, dt)| angle / dt)
     }
 
-    /// Keeps `frame` (tracked at `pose_cw`, with its raw depth image) for
-    /// later frames to compare with; frames no longer needed are dropped
+    /// Keeps `frame` (tracked at `pose_cw`, turning at `turn_rate`, with its
+    /// raw depth image) for later frames to compare with; frames no longer needed are dropped
     /// (only the newest older than the gap of the newest frame is ever
     /// used).
     fn remember(
         &mut self,
         frame: &Frame,
         depth: NearestDepth,
-        pose_cw: &Isometry3<f64>,
+        (pose_cw, turn_rate): (&Isometry3<f64>, f64),
         timestamp: f64,
     ) {
         if self
@@ -406,7 +407,6 @@ impl MotionCheck {
             // Time went back (a new pass of a sequence): start over.
             self.history.clear();
         }
-        let turn_rate = self.turn_rate(pose_cw, timestamp);
         self.history.push_back(PastFrame {
             timestamp,
             frame: frame.clone(),

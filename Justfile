@@ -190,7 +190,7 @@ synth-people: build
 
 # Motion check (services.slam.motion_check) on a box carried through the shared room (dynslam synth --boxes 1, no masks): frames where it is found, features dropped (issue 21's bar: found in 80 %).
 eval-motion:
-    cargo test --release --test motion_check -- --ignored --nocapture
+    cargo test --release --test motion_check -- --nocapture
 
 # Ablation table (no masks, ground-truth masks, segmenter every frame, product, blackout) on a dynamic sequence (default: synth-people).
 eval-dynamic dataset="" *args="": build setup

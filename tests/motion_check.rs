@@ -2,7 +2,7 @@
 //! carried through the shared fr1 room (`dynslam synth --boxes`), tracked
 //! by the SLAM library alone without any mask. Issue 21's bar: the check
 //! finds the box in >= 80 % of the frames where it covers >= 2000 px
-//! (not reached yet: ignored in `just test`, run by `just eval-motion`).
+//! (84.1 % here; `just eval-motion` runs it alone).
 //! (That it removes < 1 % of the features of the static sequence and keeps
 //! its ATE is slam-core's `core_tum` test.)
 
@@ -35,7 +35,6 @@ fn overlap(
 }
 
 #[test]
-#[ignore = "issue 21's bar (80 %) not reached yet: 76.5 % (README \"Motion check\"); run by `just eval-motion`"]
 fn a_carried_box_is_found_by_the_motion_check_without_any_mask() {
     let seq = scratch("motion-box").join("seq");
     let options = WalkOptions {

@@ -120,10 +120,10 @@ pub struct NewcomerCheck {
     flow_guess: (f32, f32),
     /// Frames to go before another request may be made.
     cooldown: u32,
-    /// The group found in the previous frame: a newcomer is a group found
+    /// The groups found in the previous frame: a newcomer is a group found
     /// in two frames in a row at about the same place (a flicker of
     /// mistracked points is not).
-    last: Option<Newcomer>,
+    last: Vec<Newcomer>,
     requests: u64,
 }
 
@@ -207,7 +207,7 @@ impl NewcomerCheck {
             camera,
             flow_guess: (0.0, 0.0),
             cooldown: 0,
-            last: None,
+            last: Vec::new(),
             requests: 0,
         }
     }
@@ -241,7 +241,15 @@ impl NewcomerCheck {
         let found = self.find(prev, cur, followed, depth, lk);
         let before = std::mem::replace(&mut self.last, found);
         let margin = self.params.cell_px;
-        let found = found.filter(|f| before.is_some_and(|b| f.near(&b, margin)))?;
+        // Any group near any of the last frame's: a large person near the
+        // camera breaks into several groups (where their texture is), and
+        // which is the largest changes from frame to frame.
+        let found = self
+            .last
+            .iter()
+            .filter(|f| before.iter().any(|b| f.near(b, margin)))
+            .max_by_key(|f| f.cells)
+            .copied()?;
         if self.cooldown > 0 {
             return None;
         }
@@ -250,6 +258,9 @@ impl NewcomerCheck {
         Some(found)
     }
 
+    /// The groups of connected mover cells that move alike between `prev`
+    /// and `cur` (none where the frame says nothing: too little tracked
+    /// background, or no camera motion most of it agrees on).
     fn find(
         &mut self,
         prev: &Pyramid,
@@ -257,7 +268,20 @@ impl NewcomerCheck {
         followed: &[&[bool]],
         depth: DepthImage,
         lk: LkParams,
-    ) -> Option<Newcomer> {
+    ) -> Vec<Newcomer> {
+        self.find_groups(prev, cur, followed, depth, lk)
+            .unwrap_or_default()
+    }
+
+    /// [`Self::find`], None where the frame says nothing.
+    fn find_groups(
+        &mut self,
+        prev: &Pyramid,
+        cur: &Pyramid,
+        followed: &[&[bool]],
+        depth: DepthImage,
+        lk: LkParams,
+    ) -> Option<Vec<Newcomer>> {
         let base = prev.levels.first()?;
         let (width, height) = (base.width, base.height);
         if cur.levels.first().map(|g| (g.width, g.height)) != Some((width, height))
@@ -386,7 +410,8 @@ impl NewcomerCheck {
             }
             (sx * sx + sy * sy).sqrt() / length.max(1e-9)
         };
-        largest_group(&mover, cols, rows)
+        let found = connected_groups(&mover, cols, rows)
+            .into_iter()
             .filter(|g| {
                 g.len() >= self.params.min_cells && coherence(g) >= self.params.min_coherence
             })
@@ -403,6 +428,8 @@ impl NewcomerCheck {
                     bbox: [x0, y0, x1, y1],
                 }
             })
+            .collect();
+        Some(found)
     }
 }
 
@@ -515,10 +542,10 @@ fn median_flow(flows: &[Flow], camera: &Camera) -> Option<(f32, f32)> {
     Some((du as f32, dv as f32))
 }
 
-/// The largest 8-connected group of set cells.
-fn largest_group(set: &[bool], cols: usize, rows: usize) -> Option<Vec<(usize, usize)>> {
+/// The 8-connected groups of set cells.
+fn connected_groups(set: &[bool], cols: usize, rows: usize) -> Vec<Vec<(usize, usize)>> {
     let mut seen = vec![false; set.len()];
-    let mut best: Option<Vec<(usize, usize)>> = None;
+    let mut groups = Vec::new();
     for start in 0..set.len() {
         if !set[start] || seen[start] {
             continue;
@@ -542,11 +569,9 @@ fn largest_group(set: &[bool], cols: usize, rows: usize) -> Option<Vec<(usize, u
                 }
             }
         }
-        if best.as_ref().is_none_or(|b| group.len() > b.len()) {
-            best = Some(group);
-        }
+        groups.push(group);
     }
-    best
+    groups
 }
 
 #[cfg(test)]
@@ -728,15 +753,18 @@ mod tests {
     }
 
     #[test]
-    fn the_largest_group_is_eight_connected() {
+    fn groups_are_eight_connected() {
         #[rustfmt::skip]
         let set = [
             true,  false, false, false,
             false, true,  false, true,
             false, false, true,  false,
+            false, false, false, false,
+            true,  true,  false, false,
         ];
-        let g = largest_group(&set, 4, 3).unwrap();
-        assert_eq!(g.len(), 4);
-        assert!(largest_group(&[false; 4], 2, 2).is_none());
+        let mut sizes: Vec<usize> = connected_groups(&set, 4, 5).iter().map(Vec::len).collect();
+        sizes.sort();
+        assert_eq!(sizes, [2, 4]);
+        assert!(connected_groups(&[false; 4], 2, 2).is_empty());
     }
 }

@@ -56,8 +56,10 @@ pub struct NewcomerParams {
     /// their mean residual length (1: all one way; mistracked points on
     /// blur and depth edges scatter).
     pub min_coherence: f64,
-    /// After a request, frames in which no other is made (a mover no class
-    /// list names would otherwise ask on every frame).
+    /// After a request, frames in which no other is made near the region
+    /// that asked (a mover no class list names would otherwise ask on every
+    /// frame); "near" grows by a cell a frame (it moves on). A region
+    /// elsewhere (another person walking in) asks at once.
     pub cooldown_frames: u32,
 }
 
@@ -118,8 +120,10 @@ pub struct NewcomerCheck {
     /// The background's median image motion in the last frame: the starting
     /// guess for tracking into the next (fast camera turns).
     flow_guess: (f32, f32),
-    /// Frames to go before another request may be made.
+    /// Frames to go before another request may be made near `asked`.
     cooldown: u32,
+    /// The region of the last request.
+    asked: Option<Newcomer>,
     /// The groups found in the previous frame: a newcomer is a group found
     /// in two frames in a row at about the same place (a flicker of
     /// mistracked points is not).
@@ -207,6 +211,7 @@ impl NewcomerCheck {
             camera,
             flow_guess: (0.0, 0.0),
             cooldown: 0,
+            asked: None,
             last: Vec::new(),
             requests: 0,
         }
@@ -244,16 +249,22 @@ impl NewcomerCheck {
         // Any group near any of the last frame's: a large person near the
         // camera breaks into several groups (where their texture is), and
         // which is the largest changes from frame to frame.
+        let since_asked =
+            (self.params.cooldown_frames - self.cooldown.min(self.params.cooldown_frames)) as usize;
+        let cooling = |f: &Newcomer| {
+            self.cooldown > 0
+                && self
+                    .asked
+                    .is_some_and(|a| f.near(&a, margin * (1 + since_asked)))
+        };
         let found = self
             .last
             .iter()
-            .filter(|f| before.iter().any(|b| f.near(b, margin)))
+            .filter(|f| before.iter().any(|b| f.near(b, margin)) && !cooling(f))
             .max_by_key(|f| f.cells)
             .copied()?;
-        if self.cooldown > 0 {
-            return None;
-        }
         self.cooldown = self.params.cooldown_frames;
+        self.asked = Some(found);
         self.requests += 1;
         Some(found)
     }
@@ -618,7 +629,12 @@ mod tests {
     /// The camera pans (the whole scene shifts 3 px) while a patch of it,
     /// 64x64 px, moves 10 px down on its own.
     fn pan_with_patch(patch: bool) -> (Pyramid, Pyramid) {
-        let inside = |x: f32, y: f32| (200.0..264.0).contains(&x) && (80.0..144.0).contains(&y);
+        pan_with_patch_at(patch, 200.0)
+    }
+
+    /// [`pan_with_patch`] with the patch's left edge at `x0` (y 80..144).
+    fn pan_with_patch_at(patch: bool, x0: f32) -> (Pyramid, Pyramid) {
+        let inside = |x: f32, y: f32| (x0..x0 + 64.0).contains(&x) && (80.0..144.0).contains(&y);
         let prev = pyramid(|x, y| {
             if patch && inside(x, y) {
                 texture(x * 1.3 + 50.0, y * 1.3)
@@ -666,6 +682,28 @@ mod tests {
         assert!(check
             .check(&prev, &cur, &[], depth, LkParams::default())
             .is_some());
+        assert_eq!(check.requests(), 2);
+    }
+
+    #[test]
+    fn a_region_elsewhere_asks_within_the_cooldown() {
+        let depth = flat_depth(2.0);
+        let depth = DepthImage {
+            raw: &depth,
+            per_metre: 5000.0,
+        };
+        let mut check = NewcomerCheck::new(camera(), NewcomerParams::default());
+        let (prev, cur) = pan_with_patch_at(true, 200.0);
+        let lk = LkParams::default();
+        assert!(check.check(&prev, &cur, &[], depth, lk).is_none());
+        assert!(check.check(&prev, &cur, &[], depth, lk).is_some());
+        // Another mover 130 px to the left: found twice, asks at once.
+        let (prev, cur) = pan_with_patch_at(true, 6.0);
+        assert!(check.check(&prev, &cur, &[], depth, lk).is_none());
+        let found = check
+            .check(&prev, &cur, &[], depth, lk)
+            .expect("a region away from the one that asked is not cooling down");
+        assert!(found.bbox[2] <= 120, "{found:?}");
         assert_eq!(check.requests(), 2);
     }
 

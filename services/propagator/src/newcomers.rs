@@ -93,6 +93,11 @@ impl DepthImage<'_> {
         let raw = u16::from_ne_bytes([*self.raw.get(i)?, *self.raw.get(i + 1)?]);
         (raw > 0 && self.per_metre > 0.0).then(|| self.per_metre as f64 / raw as f64)
     }
+
+    /// Depth (m) at a pixel, None where there is no measurement.
+    pub(crate) fn metres_at(&self, x: usize, y: usize, width: usize) -> Option<f32> {
+        self.inverse_at(x, y, width).map(|inv| (1.0 / inv) as f32)
+    }
 }
 
 /// A region that asked for a segmenter run.

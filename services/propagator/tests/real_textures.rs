@@ -5,6 +5,7 @@
 
 use std::path::Path;
 
+use propagator::newcomers::DepthImage;
 use propagator::propagate::{LkPropagator, PropagatorParams};
 use propagator::synthetic;
 use shared_types::Instance;
@@ -180,4 +181,41 @@ fn an_object_walking_in_across_the_border_grows_into_view() {
         assert!(v >= 0.8, "frame {k}: IoU {v}");
     }
     assert!(area > 3 * first, "{first} px -> {area} px");
+}
+
+/// With depth, what comes into view across a border is taken as the
+/// object's only at the object's depth: once it is wholly in view and walks
+/// on, no band of background stays between it and the border (without
+/// depth one does: the mask still touches the border, so it is still "cut"
+/// and keeps growing from there).
+#[test]
+fn with_depth_an_object_that_walked_in_leaves_no_band_behind() {
+    let (bg, tex) = (tum("1305031229.528748.png"), tum("1305031234.493831.png"));
+    let run = |with_depth: bool| -> f64 {
+        let mut p = LkPropagator::new(PropagatorParams::default());
+        let (rgb, mask) = render(&bg, &tex, (0.0, 0.0), (675.0, 240.0), 1.0);
+        prompt(&mut p, &rgb, &mask);
+        let mut last = 0.0;
+        for k in 1..=16 {
+            let c = (675.0 - 16.0 * k as f32, 240.0);
+            let (rgb, truth) = render(&bg, &tex, (0.0, 0.0), c, 1.0);
+            // The object 1 m away, the background 2 m (5000 units a metre).
+            let depth: Vec<u8> = truth
+                .iter()
+                .flat_map(|&m| if m { 5000u16 } else { 10000 }.to_ne_bytes())
+                .collect();
+            let depth = with_depth.then_some(DepthImage {
+                raw: &depth,
+                per_metre: 5000.0,
+            });
+            let mut labels = vec![0u8; W * H];
+            assert_eq!(p.propagate_rgbd(&rgb, depth, W, H, &mut labels).len(), 1);
+            last = iou(&labels, &truth);
+        }
+        last
+    };
+    let (with, without) = (run(true), run(false));
+    println!("IoU after 16 frames: {with:.3} with depth, {without:.3} without");
+    assert!(with >= 0.8, "with depth: IoU {with}");
+    assert!(with > without + 0.05, "with {with}, without {without}");
 }

@@ -370,10 +370,11 @@ pub fn evaluate(
             seg_ms.push(t.elapsed().as_secs_f64() * 1e3);
             propagator.prompt_with(rgb.as_raw(), w, h, &labels, &instances);
         } else {
-            // Depth only where the newcomer check reads it (decoded before
-            // the clock starts).
+            // The frame's depth, as the pipeline's propagator gets it (what
+            // comes into view across a border is checked against it; the
+            // newcomer check; decoded before the clock starts).
             let depth = match &frame.depth {
-                Some(path) if config.routing.early_segment_requests => {
+                Some(path) => {
                     depth_buf.resize(w * h * 2, 0);
                     decode_depth_into(path, (w as u32, h as u32), &mut depth_buf)?;
                     Some(DepthImage {

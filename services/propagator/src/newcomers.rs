@@ -87,16 +87,23 @@ pub struct DepthImage<'a> {
 }
 
 impl DepthImage<'_> {
-    /// Inverse depth (1/m) at a pixel, None where there is no measurement.
-    fn inverse_at(&self, x: usize, y: usize, width: usize) -> Option<f64> {
+    /// The raw value at a pixel, None where there is no measurement.
+    fn raw_at(&self, x: usize, y: usize, width: usize) -> Option<f64> {
         let i = (y * width + x) * 2;
         let raw = u16::from_ne_bytes([*self.raw.get(i)?, *self.raw.get(i + 1)?]);
-        (raw > 0 && self.per_metre > 0.0).then(|| self.per_metre as f64 / raw as f64)
+        (raw > 0 && self.per_metre > 0.0).then_some(raw as f64)
+    }
+
+    /// Inverse depth (1/m) at a pixel, None where there is no measurement.
+    fn inverse_at(&self, x: usize, y: usize, width: usize) -> Option<f64> {
+        self.raw_at(x, y, width)
+            .map(|raw| self.per_metre as f64 / raw)
     }
 
     /// Depth (m) at a pixel, None where there is no measurement.
     pub(crate) fn metres_at(&self, x: usize, y: usize, width: usize) -> Option<f32> {
-        self.inverse_at(x, y, width).map(|inv| (1.0 / inv) as f32)
+        self.raw_at(x, y, width)
+            .map(|raw| (raw / self.per_metre as f64) as f32)
     }
 }
 
@@ -248,7 +255,9 @@ impl NewcomerCheck {
         lk: LkParams,
     ) -> Option<Newcomer> {
         self.cooldown = self.cooldown.saturating_sub(1);
-        let found = self.find(prev, cur, followed, depth, lk);
+        let found = self
+            .find(prev, cur, followed, depth, lk)
+            .unwrap_or_default();
         let before = std::mem::replace(&mut self.last, found);
         let margin = self.params.cell_px;
         // Any group near any of the last frame's: a large person near the
@@ -275,22 +284,9 @@ impl NewcomerCheck {
     }
 
     /// The groups of connected mover cells that move alike between `prev`
-    /// and `cur` (none where the frame says nothing: too little tracked
+    /// and `cur`; None where the frame says nothing (too little tracked
     /// background, or no camera motion most of it agrees on).
     fn find(
-        &mut self,
-        prev: &Pyramid,
-        cur: &Pyramid,
-        followed: &[&[bool]],
-        depth: DepthImage,
-        lk: LkParams,
-    ) -> Vec<Newcomer> {
-        self.find_groups(prev, cur, followed, depth, lk)
-            .unwrap_or_default()
-    }
-
-    /// [`Self::find`], None where the frame says nothing.
-    fn find_groups(
         &mut self,
         prev: &Pyramid,
         cur: &Pyramid,

@@ -171,14 +171,12 @@ fn refine(
             let candidate = renormalized(&(perturbation(delta.as_slice()) * pose));
             (cost(&candidate), candidate)
         });
-        match step {
-            Some((candidate, moved)) => {
-                pose = candidate;
-                if !moved {
-                    break;
-                }
-            }
-            None => break,
+        let Some((candidate, moved)) = step else {
+            break;
+        };
+        pose = candidate;
+        if !moved {
+            break;
         }
     }
     pose
@@ -418,14 +416,12 @@ fn refine_with_twist(
                 (candidate, candidate_twist),
             )
         });
-        match step {
-            Some(((candidate, candidate_twist), moved)) => {
-                (pose, twist) = (candidate, candidate_twist);
-                if !moved {
-                    break;
-                }
-            }
-            None => break,
+        let Some(((candidate, candidate_twist), moved)) = step else {
+            break;
+        };
+        (pose, twist) = (candidate, candidate_twist);
+        if !moved {
+            break;
         }
     }
     (pose, twist)

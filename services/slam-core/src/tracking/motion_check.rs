@@ -335,18 +335,25 @@ impl MotionCheck {
         else {
             return Vec::new();
         };
-        let now_to_past = past.pose_cw * pose_cw.inverse();
-        let around = past
-            .depth
-            .around(lookup_window(camera, turn, past.turn_rate));
+        let cells = &self.cell_pixels.as_ref().expect("computed above").1;
+        // An older frame's nearest depth around each cell (the lookup window
+        // grown by both frames' turns) and the depth warp against it.
+        let warp = |older: &PastFrame| {
+            let around = older
+                .depth
+                .around(lookup_window(camera, turn, older.turn_rate));
+            let now_to_older = older.pose_cw * pose_cw.inverse();
+            let dense = dense_regions(now, cells, &around, &now_to_older, camera, p);
+            (around, dense)
+        };
+        let (around, dense) = warp(past);
         let evidence = keypoint_evidence(frame, pose_cw, past, &around, camera, p);
         // Two kinds of evidence, grouped apart: keypoints seen again
         // elsewhere (shifted), and keypoints now where the older frame saw
         // free space (no shift; an object that entered or moved onto it).
         let mut out = clusters(&evidence.moved, &evidence.matched_at, p);
         out.extend(clusters(&evidence.appeared, &evidence.seen_at, p));
-        let cells = &self.cell_pixels.as_ref().expect("computed above").1;
-        out.extend(dense_regions(now, cells, &around, &now_to_past, camera, p));
+        out.extend(dense);
         // The depth warp also against a frame half as old: it saw more of
         // what the camera sees now (a mover that came in with a turn or at
         // the border).
@@ -356,23 +363,13 @@ impl MotionCheck {
             .rev()
             .find(|f| timestamp - f.timestamp >= p.gap_s / 2.0 && f.timestamp > past.timestamp)
         {
-            let now_to_recent = recent.pose_cw * pose_cw.inverse();
             // Keypoints seen again elsewhere in it too: a mover that came
             // in at the border in the last 0.2 s is not in the older frame
             // (carried box: 94 -> 99 of 132 frames found; +1.4 ms a frame).
-            let around = recent
-                .depth
-                .around(lookup_window(camera, turn, recent.turn_rate));
+            let (around, dense) = warp(recent);
             let e = keypoint_evidence(frame, pose_cw, recent, &around, camera, p);
             out.extend(clusters(&e.moved, &e.matched_at, p));
-            out.extend(dense_regions(
-                now,
-                cells,
-                &around,
-                &now_to_recent,
-                camera,
-                p,
-            ));
+            out.extend(dense);
         }
         // The depth warp against a frame twice as old, for a mover that
         // turned back within the gap (carried box, 6 synthesised walks:
@@ -385,18 +382,7 @@ impl MotionCheck {
             .rev()
             .find(|f| timestamp - f.timestamp >= p.long_gap_s && f.timestamp < past.timestamp)
         {
-            let now_to_long_ago = long_ago.pose_cw * pose_cw.inverse();
-            let around = long_ago
-                .depth
-                .around(lookup_window(camera, turn, long_ago.turn_rate));
-            out.extend(dense_regions(
-                now,
-                cells,
-                &around,
-                &now_to_long_ago,
-                camera,
-                p,
-            ));
+            out.extend(warp(long_ago).1);
         }
         out
     }

@@ -373,3 +373,58 @@ fn masks_on_people_passing_in_front_of_the_tum_scene_meet_the_targets() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// Issue 21's segmenter target on the mixed behaviours (toward and away,
+/// stop and go, crossing, entering; what `just eval-masks` reports last):
+/// keyframe IoU >= 0.75 with the shipped settings. Weak detections kept
+/// on evidence (`weak_score_threshold`) are what brings it there: people
+/// leaving at the border, at scores 0.05-0.25, continue an object of the
+/// frame before (0.756 against 0.706 without them when written).
+#[test]
+fn weak_detections_bring_the_mixed_behaviours_to_the_segmenter_target() {
+    let dir = scratch("synth-mixed");
+    let out = dir.join("mixed");
+    let o = Command::new(dynslam())
+        .arg("synth")
+        .arg(shared_tum())
+        .arg(&out)
+        .args(["--objects", "3", "--seed", "5", "--occlusion", "none"])
+        .args(["--behaviour", "mixed"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let eval = |config: Option<&Path>| {
+        let mut cmd = Command::new(dynslam());
+        cmd.arg("masks-eval").arg(&out).arg("--json");
+        if let Some(c) = config {
+            cmd.arg("--config").arg(c);
+        }
+        let o = cmd
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        serde_json::from_slice::<serde_json::Value>(&o.stdout).unwrap()
+    };
+    let shipped = eval(None);
+    let strict_config = dir.join("strict.toml");
+    std::fs::write(
+        &strict_config,
+        "[services.segmenter]\nweak_score_threshold = 0.25\n",
+    )
+    .unwrap();
+    let strict = eval(Some(&strict_config));
+    let (with, without) = (
+        json_f64(&shipped, "segmenter_iou"),
+        json_f64(&strict, "segmenter_iou"),
+    );
+    eprintln!(
+        "mixed behaviours, keyframe IoU {with:.3} with weak detections, {without:.3} without; propagator {:.3} / {:.3}",
+        json_f64(&shipped, "propagator_iou"),
+        json_f64(&strict, "propagator_iou")
+    );
+    assert!(with >= 0.75, "{shipped}");
+    assert!(with > without + 0.02, "{shipped}\n{strict}");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -409,6 +409,7 @@ impl Default for ServicesConfig {
                 // known export brings that export's size.
                 classes: DEFAULT_DYNAMIC_CLASSES.map(String::from).to_vec(),
                 score_threshold: Some(0.25),
+                weak_score_threshold: Some(0.05),
                 iou_threshold: Some(0.7),
                 threads: Some(2),
                 nice: Some(10),
@@ -458,6 +459,10 @@ pub struct ServiceConfig {
     pub model_sha256: String,
     /// Model backends: minimum class score of an instance.
     pub score_threshold: Option<f32>,
+    /// YOLOv8-seg: weaker detections, down to this score, are kept where the
+    /// frame's depth shows them standing in front of their surroundings
+    /// (unset: `score_threshold`, none kept that way).
+    pub weak_score_threshold: Option<f32>,
     /// Model backends: IoU above which the weaker of two same-class boxes is suppressed.
     pub iou_threshold: Option<f32>,
     /// Model backends: the movable classes that become dynamic masks (names).
@@ -641,6 +646,7 @@ impl PipelineConfig {
         ] {
             for (key, v) in [
                 ("score_threshold", svc.score_threshold),
+                ("weak_score_threshold", svc.weak_score_threshold),
                 ("iou_threshold", svc.iou_threshold),
                 ("min_predicted_iou", svc.min_predicted_iou),
                 ("min_area_ratio", svc.min_area_ratio),

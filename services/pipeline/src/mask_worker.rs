@@ -31,6 +31,18 @@ pub trait MaskModel {
     /// zeroed `labels` (`width*height` bytes) and return the instances.
     fn infer(&mut self, frame: &FrameView, labels: &mut [u8]) -> Result<Vec<Instance>>;
 
+    /// [`Self::infer`] given `previous`, the newest masks published before
+    /// this frame's by either worker: the segmenter keeps a weak detection
+    /// that continues an object in them.
+    fn infer_after(
+        &mut self,
+        frame: &FrameView,
+        _previous: Option<&MasksView>,
+        labels: &mut [u8],
+    ) -> Result<Vec<Instance>> {
+        self.infer(frame, labels)
+    }
+
     /// Segmenter masks for `frame` (a keyframe): new prompts. Only the
     /// propagator uses them; `frame` is `None` when it no longer holds it.
     fn prompt(&mut self, _frame: Option<&FrameView>, _masks: &MasksView) {}
@@ -56,6 +68,13 @@ pub trait MaskModel {
 const HELD_FRAMES: usize = 3;
 
 type FrameSample = Sample<Svc, [u8], FrameHeader>;
+type MasksSample = Sample<Svc, [u8], MasksHeader>;
+
+/// Mask sets the segmenter keeps (within the masks topic's borrow limit):
+/// in real time the propagator publishes newer frames' masks while a
+/// keyframe is segmented, and the one before the keyframe must still be
+/// there.
+const RECENT_MASKS: usize = 3;
 
 /// Runs a mask worker until SIGTERM.
 pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>) -> Result<()> {
@@ -65,24 +84,23 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
     };
     let frames = ctx.transport.slice_receiver::<FrameHeader>(Topic::Frames)?;
     let routes = ctx.transport.receiver::<Route>(Topic::Routes)?;
-    // Only the propagator reads masks (its prompts); a segmenter subscribed
-    // to them would just have every sample delivered into an unread queue.
-    let prompts = match role {
-        MaskSource::Propagator => Some(ctx.transport.slice_receiver::<MasksHeader>(Topic::Masks)?),
-        _ => None,
-    };
+    // Both read masks: the propagator the segmenter's (its prompts), the
+    // segmenter the newest before the frame it segments (`infer_after`).
+    let masks_in = ctx.transport.slice_receiver::<MasksHeader>(Topic::Masks)?;
     let masks_out = ctx
         .transport
         .slice_sender::<MasksHeader>(Topic::Masks, ctx.config.max_mask_bytes())?;
     let ws = waitset()?;
     let _a = attach(&ws, &frames)?;
     let _b = attach(&ws, &routes)?;
-    let _c = prompts.as_ref().map(|p| attach(&ws, p)).transpose()?;
+    let _c = attach(&ws, &masks_in)?;
     ctx.announce_ready()?;
     tracing::info!("{} ready with model '{}'", role.as_str(), model.name());
 
     let realtime = ctx.config.run.mode == ClockMode::Realtime;
     let mut held: VecDeque<FrameSample> = VecDeque::new();
+    // The segmenter's newest masks (held in place, not copied).
+    let mut recent: VecDeque<MasksSample> = VecDeque::new();
     let mut pending: VecDeque<Route> = VecDeque::new();
     // Routed frames already replaced by newer ones (real time): counted and
     // said once at the end instead of a warning per frame.
@@ -114,17 +132,26 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
                 held.pop_front();
             }
         }
-        if let Some(prompts) = &prompts {
-            prompts.clear_wakeups();
-            while let Some(sample) = prompts.next_sample()? {
-                if sample.user_header().has(mask_flags::GONE) {
-                    continue; // no masks came for that frame
+        masks_in.clear_wakeups();
+        while let Some(sample) = masks_in.next_sample()? {
+            let h = sample.user_header();
+            if h.has(mask_flags::GONE) || h.has(mask_flags::FAILED) {
+                continue; // no masks came for that frame
+            }
+            match role {
+                MaskSource::Propagator => {
+                    let masks = MasksView::new(h, sample.payload())?;
+                    if masks.source() == MaskSource::Segmenter {
+                        model.prompt(held_frame(&held, masks.header.seq).as_ref(), &masks);
+                    }
                 }
-                let masks = MasksView::new(sample.user_header(), sample.payload())?;
-                if masks.source() != MaskSource::Segmenter {
-                    continue;
+                _ => {
+                    recent.retain(|s| s.user_header().seq != h.seq);
+                    recent.push_back(sample);
+                    while recent.len() > RECENT_MASKS {
+                        recent.pop_front();
+                    }
                 }
-                model.prompt(held_frame(&held, masks.header.seq).as_ref(), &masks);
             }
         }
         for r in routes.drain()? {
@@ -169,7 +196,12 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
             };
             pending.pop_front();
             tracing::debug!(seq = route.seq, "making masks");
-            publish_masks(&masks_out, &mut *model, role, &route, sample)?;
+            let previous = recent
+                .iter()
+                .filter(|m| m.user_header().seq < route.seq)
+                .max_by_key(|m| m.user_header().seq)
+                .and_then(|m| MasksView::new(m.user_header(), m.payload()).ok());
+            publish_masks(&masks_out, &mut *model, role, &route, sample, previous)?;
             published += 1;
         }
     }
@@ -206,6 +238,7 @@ fn publish_masks(
     role: MaskSource,
     route: &Route,
     sample: &FrameSample,
+    previous: Option<MasksView>,
 ) -> Result<()> {
     let start_ns = now_ns();
     let fh = sample.user_header();
@@ -220,7 +253,7 @@ fn publish_masks(
     header.stamps.masks_start_ns = start_ns;
     let mut out_sample = out.loan(fh.width as usize * fh.height as usize)?;
     let result = FrameView::new(fh, sample.payload())
-        .and_then(|frame| model.infer(&frame, out_sample.payload_mut()));
+        .and_then(|frame| model.infer_after(&frame, previous.as_ref(), out_sample.payload_mut()));
     match result {
         Ok(instances) => {
             let n = instances.len().min(MAX_INSTANCES);

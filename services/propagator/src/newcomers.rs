@@ -79,33 +79,7 @@ impl Default for NewcomerParams {
     }
 }
 
-/// Depth of a frame: native-endian u16 values, `per_metre` units a metre.
-#[derive(Debug, Clone, Copy)]
-pub struct DepthImage<'a> {
-    pub raw: &'a [u8],
-    pub per_metre: f32,
-}
-
-impl DepthImage<'_> {
-    /// The raw value at a pixel, None where there is no measurement.
-    fn raw_at(&self, x: usize, y: usize, width: usize) -> Option<f64> {
-        let i = (y * width + x) * 2;
-        let raw = u16::from_ne_bytes([*self.raw.get(i)?, *self.raw.get(i + 1)?]);
-        (raw > 0 && self.per_metre > 0.0).then_some(raw as f64)
-    }
-
-    /// Inverse depth (1/m) at a pixel, None where there is no measurement.
-    fn inverse_at(&self, x: usize, y: usize, width: usize) -> Option<f64> {
-        self.raw_at(x, y, width)
-            .map(|raw| self.per_metre as f64 / raw)
-    }
-
-    /// Depth (m) at a pixel, None where there is no measurement.
-    pub(crate) fn metres_at(&self, x: usize, y: usize, width: usize) -> Option<f32> {
-        self.raw_at(x, y, width)
-            .map(|raw| (raw / self.per_metre as f64) as f32)
-    }
-}
+pub use pipeline::views::DepthImage;
 
 /// A region that asked for a segmenter run.
 #[derive(Debug, Clone, Copy, PartialEq)]

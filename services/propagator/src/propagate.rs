@@ -830,10 +830,7 @@ impl MaskModel for LkPropagator {
 
     fn infer(&mut self, frame: &FrameView, labels: &mut [u8]) -> Result<Vec<Instance>> {
         let (w, h) = (frame.width(), frame.height());
-        let depth = frame.depth.map(|raw| DepthImage {
-            raw,
-            per_metre: frame.header.depth_scale,
-        });
+        let depth = frame.depth_image();
         let instances = self.propagate_frame(frame.header.seq, frame.rgb, depth, w, h, labels);
         if let Some(n) = self.newcomer {
             tracing::debug!(

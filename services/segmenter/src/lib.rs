@@ -5,12 +5,15 @@
 //!   and its inverse.
 //! - [`yolo`]: YOLOv8-seg output decoding (class-wise NMS, prototype masks),
 //!   pure Rust, testable without a model.
+//! - [`foreground`]: depth evidence that keeps a weak detection (a mask
+//!   standing in front of its surroundings).
 //! - [`onnx`]: the YOLOv8-seg backend on ONNX Runtime, a `MaskModel`.
 //! - [`ground_truth`]: the exact masks of a synthesised sequence (the
 //!   ablation's reference row), a `MaskModel` too.
 //! - [`maskrcnn`]: the Mask R-CNN backend (torchvision ONNX export signature).
 
 pub mod coco;
+pub mod foreground;
 pub mod ground_truth;
 pub mod letterbox;
 pub mod maskrcnn;

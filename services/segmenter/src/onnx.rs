@@ -10,12 +10,13 @@ use ort::value::TensorRef;
 use pipeline::config::ServiceConfig;
 use pipeline::mask_worker::MaskModel;
 use pipeline::runtime::InputError;
-use pipeline::views::FrameView;
+use pipeline::views::{DepthImage, FrameView, MasksView};
 use shared_types::Instance;
 
 use crate::coco;
+use crate::foreground::{continues, stands_out, ForegroundParams};
 use crate::letterbox::Letterbox;
-use crate::yolo::{candidates, nms, paint_masks, Prototypes, MASK_COEFFICIENTS};
+use crate::yolo::{candidates, nms, paint_masks, Detection, Prototypes, MASK_COEFFICIENTS};
 
 /// Settings of the backend, resolved from the configuration.
 #[derive(Debug, Clone)]
@@ -23,6 +24,12 @@ pub struct YoloSettings {
     pub model: PathBuf,
     pub input_size: usize,
     pub score_threshold: f32,
+    /// Detections from here up to `score_threshold` are kept where depth
+    /// shows them standing in front of their surroundings
+    /// ([`crate::foreground`]); at or above `score_threshold`, none is kept
+    /// that way.
+    pub weak_score_threshold: f32,
+    pub foreground: ForegroundParams,
     pub iou_threshold: f32,
     pub dynamic_classes: Vec<usize>,
     pub threads: usize,
@@ -144,9 +151,11 @@ impl YoloSettings {
         let dynamic_classes =
             coco::dynamic_classes(&cfg.classes, "segmenter").map_err(InputError)?;
         let score_threshold = cfg.score_threshold.unwrap_or(0.5);
+        let weak_score_threshold = cfg.weak_score_threshold.unwrap_or(score_threshold);
         let iou_threshold = cfg.iou_threshold.unwrap_or(0.7);
         for (key, v) in [
             ("score_threshold", score_threshold),
+            ("weak_score_threshold", weak_score_threshold),
             ("iou_threshold", iou_threshold),
         ] {
             if !(0.0..=1.0).contains(&v) {
@@ -160,6 +169,8 @@ impl YoloSettings {
             model,
             input_size,
             score_threshold,
+            weak_score_threshold,
+            foreground: ForegroundParams::default(),
             iou_threshold,
             dynamic_classes,
             threads: cfg.threads.unwrap_or(2).max(1),
@@ -215,6 +226,24 @@ impl YoloSeg {
         height: usize,
         labels: &mut [u8],
     ) -> Result<Vec<Instance>> {
+        self.segment_rgbd(rgb, None, None, width, height, labels)
+    }
+
+    /// [`Self::segment`] with what can confirm a weak detection
+    /// (`weak_score_threshold`): the label image of the frame before
+    /// (`previous`, `width*height`; a weak detection that continues an
+    /// object there is kept, as a tracker keeps a low-score detection that
+    /// extends a track) and the frame's depth (one that stands in front of
+    /// its surroundings is kept).
+    pub fn segment_rgbd(
+        &mut self,
+        rgb: &[u8],
+        depth: Option<DepthImage>,
+        previous: Option<&[u8]>,
+        width: usize,
+        height: usize,
+        labels: &mut [u8],
+    ) -> Result<Vec<Instance>> {
         let n = self.settings.input_size;
         let lb = Letterbox::new(width, height, n);
         lb.fill_input(rgb, width, height, &mut self.input);
@@ -231,13 +260,14 @@ impl YoloSeg {
         }
         let num_classes = rows - 4 - MASK_COEFFICIENTS;
         let wanted = |c: usize| self.settings.dynamic_classes.contains(&c);
-        let dets = candidates(
-            out0,
-            num_classes,
-            anchors,
-            self.settings.score_threshold,
-            &wanted,
-        );
+        let strong = self.settings.score_threshold;
+        let previous = previous.filter(|p| p.len() == width * height);
+        let lowest = if depth.is_some() || previous.is_some() {
+            self.settings.weak_score_threshold.min(strong)
+        } else {
+            strong
+        };
+        let dets = candidates(out0, num_classes, anchors, lowest, &wanted);
         let dets = nms(
             dets,
             self.settings.iou_threshold,
@@ -248,7 +278,15 @@ impl YoloSeg {
             height: shape1[2] as usize,
             width: shape1[3] as usize,
         };
-        Ok(paint_masks(&dets, &protos, &lb, width, height, labels))
+        let foreground = self.settings.foreground;
+        let keep = |d: &Detection, pixels: &[u32]| {
+            d.score >= strong
+                || previous.is_some_and(|p| continues(pixels, p))
+                || depth.is_some_and(|depth| stands_out(pixels, &depth, width, height, &foreground))
+        };
+        Ok(paint_masks(
+            &dets, &protos, &lb, width, height, labels, keep,
+        ))
     }
 }
 
@@ -258,8 +296,26 @@ impl MaskModel for YoloSeg {
     }
 
     fn infer(&mut self, frame: &FrameView, labels: &mut [u8]) -> Result<Vec<Instance>> {
-        self.segment(frame.rgb, frame.width(), frame.height(), labels)
-            .context("YOLOv8-seg inference")
+        self.infer_after(frame, None, labels)
+    }
+
+    fn infer_after(
+        &mut self,
+        frame: &FrameView,
+        previous: Option<&MasksView>,
+        labels: &mut [u8],
+    ) -> Result<Vec<Instance>> {
+        let (width, height) = (frame.width(), frame.height());
+        let previous = previous.map(|m| m.labels);
+        self.segment_rgbd(
+            frame.rgb,
+            frame.depth_image(),
+            previous,
+            width,
+            height,
+            labels,
+        )
+        .context("YOLOv8-seg inference")
     }
 }
 

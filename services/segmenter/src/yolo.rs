@@ -100,9 +100,11 @@ pub struct Prototypes<'a> {
     pub width: usize,
 }
 
-/// Paints each detection's mask into `labels` (`width*height`, instance
-/// `i` as `i + 1`; a pixel keeps the first, highest-scoring, instance) and
-/// returns the instances in image coordinates.
+/// Paints the mask of each detection that `keep` accepts (given the
+/// detection and its mask's pixels not yet taken, as indices into the
+/// image) into `labels` (`width*height`, the `i`-th kept instance as
+/// `i + 1`; a pixel keeps the first, highest-scoring, instance) and returns
+/// the kept instances in image coordinates.
 pub fn paint_masks(
     dets: &[Detection],
     protos: &Prototypes,
@@ -110,13 +112,18 @@ pub fn paint_masks(
     width: usize,
     height: usize,
     labels: &mut [u8],
+    mut keep: impl FnMut(&Detection, &[u32]) -> bool,
 ) -> Vec<Instance> {
     let (pw, ph) = (protos.width, protos.height);
     let plane = pw * ph;
     let stride = lb.size as f32 / pw as f32; // input pixels per prototype pixel
     let mut instances = Vec::new();
     let mut logits = vec![0.0f32; plane];
-    for (i, d) in dets.iter().enumerate().take(254) {
+    let mut pixels = Vec::new();
+    for d in dets {
+        if instances.len() >= 254 {
+            break;
+        }
         // Mask logits on the prototype grid, only inside the (padded) box.
         let gx0 = ((d.bbox[0] / stride).floor().max(0.0) as usize).min(pw);
         let gy0 = ((d.bbox[1] / stride).floor().max(0.0) as usize).min(ph);
@@ -149,7 +156,7 @@ pub fn paint_masks(
         let (ix1, iy1) = lb.to_image(d.bbox[2], d.bbox[3]);
         let (ix0, iy0) = (ix0.clamp(0.0, width as f32), iy0.clamp(0.0, height as f32));
         let (ix1, iy1) = (ix1.clamp(0.0, width as f32), iy1.clamp(0.0, height as f32));
-        let label = (i + 1) as u8;
+        pixels.clear();
         for y in iy0.floor() as usize..(iy1.ceil() as usize).min(height) {
             for x in ix0.floor() as usize..(ix1.ceil() as usize).min(width) {
                 let (lx, ly) = lb.to_input(x as f32 + 0.5, y as f32 + 0.5);
@@ -157,14 +164,20 @@ pub fn paint_masks(
                     continue;
                 }
                 // sigmoid(v) > 0.5  <=>  v > 0
-                let px = &mut labels[y * width + x];
-                if *px == 0 && sample(lx, ly) > 0.0 {
-                    *px = label;
+                if labels[y * width + x] == 0 && sample(lx, ly) > 0.0 {
+                    pixels.push((y * width + x) as u32);
                 }
             }
         }
+        if !keep(d, &pixels) {
+            continue;
+        }
+        let label = (instances.len() + 1) as u8;
+        for &i in &pixels {
+            labels[i as usize] = label;
+        }
         instances.push(Instance {
-            object_id: i as u32,
+            object_id: instances.len() as u32,
             class_id: d.class_id as u32,
             score: d.score,
             bbox: [ix0, iy0, ix1, iy1],
@@ -233,7 +246,7 @@ mod tests {
         let mut d = det(0, 0.9, [0.0, 0.0, 24.0, 32.0]);
         d.coefficients[0] = 1.0;
         let mut labels = vec![0u8; 32 * 32];
-        let inst = paint_masks(&[d], &protos, &lb, 32, 32, &mut labels);
+        let inst = paint_masks(&[d], &protos, &lb, 32, 32, &mut labels, |_, _| true);
         assert_eq!(inst.len(), 1);
         assert_eq!(inst[0].bbox, [0.0, 0.0, 24.0, 32.0]);
         // Left half labelled, right half and outside the box not.
@@ -243,5 +256,42 @@ mod tests {
         assert_eq!(labels[5 * 32 + 28], 0);
         let count = labels.iter().filter(|&&l| l == 1).count();
         assert!((15 * 32..=17 * 32).contains(&count), "{count}");
+    }
+
+    #[test]
+    fn a_detection_left_out_leaves_no_gap_in_the_labels() {
+        // Three boxes on a mask that is everywhere positive; the middle
+        // one is refused: the third becomes instance 2, labelled 2.
+        let data = vec![1.0f32; MASK_COEFFICIENTS * 8 * 8];
+        let protos = Prototypes {
+            data: &data,
+            height: 8,
+            width: 8,
+        };
+        let lb = Letterbox::new(32, 32, 32);
+        let mut dets = vec![
+            det(0, 0.9, [0.0, 0.0, 8.0, 8.0]),
+            det(0, 0.1, [10.0, 10.0, 18.0, 18.0]),
+            det(0, 0.8, [20.0, 20.0, 28.0, 28.0]),
+        ];
+        for d in &mut dets {
+            d.coefficients[0] = 1.0;
+        }
+        let mut labels = vec![0u8; 32 * 32];
+        let mut seen = Vec::new();
+        let inst = paint_masks(&dets, &protos, &lb, 32, 32, &mut labels, |d, px| {
+            seen.push(px.len());
+            d.score > 0.5
+        });
+        assert_eq!(
+            seen,
+            vec![64, 64, 64],
+            "each mask's free pixels are offered"
+        );
+        assert_eq!(inst.len(), 2);
+        assert_eq!((inst[1].object_id, inst[1].score), (1, 0.8));
+        assert_eq!(labels[4 * 32 + 4], 1);
+        assert_eq!(labels[14 * 32 + 14], 0);
+        assert_eq!(labels[24 * 32 + 24], 2);
     }
 }

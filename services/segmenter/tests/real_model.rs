@@ -298,3 +298,138 @@ fn the_480_and_640_rewrites_agree_with_the_320_export_on_large_objects() {
         }
     }
 }
+
+/// The default export (480) keeping detections from `score` and weaker
+/// ones down to `weak` on evidence (`weak_score_threshold`).
+fn model_480(score: f32, weak: f32) -> YoloSeg {
+    let (_, file, _) = segmenter::onnx::export_for(480).unwrap();
+    let path = [
+        repo().join("../shared/models").join(file),
+        repo().join(pipeline::provision::DERIVED_MODELS).join(file),
+    ]
+    .into_iter()
+    .find(|p| p.is_file())
+    .unwrap_or_else(|| panic!("{file}: run `just setup`"));
+    let cfg = ServiceConfig {
+        model_path: Some(path),
+        classes: pipeline::config::DEFAULT_DYNAMIC_CLASSES
+            .iter()
+            .map(|s| s.to_string())
+            .collect(),
+        score_threshold: Some(score),
+        weak_score_threshold: Some(weak),
+        ..Default::default()
+    };
+    YoloSeg::load(
+        init_runtime(&runtime()).unwrap(),
+        YoloSettings::from_config(&cfg).unwrap(),
+    )
+    .unwrap()
+}
+
+/// Every 10th frame of the static shared sequence with its depth.
+fn static_frames_with_depth() -> Vec<(Vec<u8>, Vec<u8>)> {
+    let dir = repo().join("../shared/data/tum/rgbd_dataset_freiburg1_rpy_first300");
+    let entries = camera_reader::source::tum_folder(&dir, 0.02).unwrap();
+    entries
+        .iter()
+        .step_by(10)
+        .map(|e| {
+            let rgb = image::open(&e.rgb).unwrap().to_rgb8().into_raw();
+            let mut depth = vec![0u8; 640 * 480 * 2];
+            camera_reader::decode::decode_depth_into(
+                e.depth.as_ref().unwrap(),
+                (640, 480),
+                &mut depth,
+            )
+            .unwrap();
+            (rgb, depth)
+        })
+        .collect()
+}
+
+#[test]
+fn weak_detections_need_depth_or_a_followed_object_to_become_masks() {
+    // Below score_threshold the network finds people that are cut by the
+    // border or partly hidden, among many detections on the desk clutter
+    // of the static shared room. Kept on depth evidence alone, the weak
+    // ones add little area there (0.0091 of the pixels against 0.0087
+    // without them, when written); kept all, they nearly triple it
+    // (0.0251).
+    let frames = static_frames_with_depth();
+    let (w, h) = (640, 480);
+    let mut strict = model_480(0.25, 0.25);
+    let mut weak = model_480(0.25, 0.05);
+    let mut all = model_480(0.05, 0.05);
+    let masked = |labels: &[u8]| labels.iter().filter(|&&l| l > 0).count();
+    let (mut area_strict, mut area_weak, mut area_all) = (0, 0, 0);
+    let mut labels = vec![0u8; w * h];
+    for (rgb, depth) in &frames {
+        let depth = pipeline::views::DepthImage {
+            raw: depth,
+            per_metre: 5000.0,
+        };
+        labels.fill(0);
+        strict
+            .segment_rgbd(rgb, Some(depth), None, w, h, &mut labels)
+            .unwrap();
+        area_strict += masked(&labels);
+        labels.fill(0);
+        weak.segment_rgbd(rgb, Some(depth), None, w, h, &mut labels)
+            .unwrap();
+        area_weak += masked(&labels);
+        labels.fill(0);
+        all.segment(rgb, w, h, &mut labels).unwrap();
+        area_all += masked(&labels);
+    }
+    let share = |a: usize| a as f64 / (frames.len() * w * h) as f64;
+    println!(
+        "masked share of {} static frames: {:.4} at 0.25, {:.4} weak on depth, {:.4} all down to 0.05",
+        frames.len(),
+        share(area_strict),
+        share(area_weak),
+        share(area_all)
+    );
+    assert!(
+        share(area_weak) <= 1.25 * share(area_strict),
+        "depth evidence kept clutter"
+    );
+    assert!(
+        share(area_all) >= 2.0 * share(area_strict),
+        "the weak detections are not there to reject (nothing tested)"
+    );
+
+    // A weak detection on clutter is kept where the frame before had an
+    // object over it (a person followed there), and nowhere else.
+    let (rgb, _) = frames
+        .iter()
+        .find(|(rgb, _)| {
+            let mut l = vec![0u8; w * h];
+            let strong = strict.segment(rgb, w, h, &mut l).unwrap().len();
+            let mut l = vec![0u8; w * h];
+            all.segment(rgb, w, h, &mut l).unwrap().len() > strong
+        })
+        .expect("a static frame with a weak detection");
+    let mut plain = vec![0u8; w * h];
+    let plain_n = strict.segment(rgb, w, h, &mut plain).unwrap().len();
+    let mut every = vec![0u8; w * h];
+    all.segment(rgb, w, h, &mut every).unwrap();
+    // The frame before: an object exactly where the weak detections are.
+    let previous: Vec<u8> = every
+        .iter()
+        .zip(&plain)
+        .map(|(&e, &p)| u8::from(e > 0 && p == 0))
+        .collect();
+    labels.fill(0);
+    let kept = weak
+        .segment_rgbd(rgb, None, Some(&previous), w, h, &mut labels)
+        .unwrap();
+    assert!(kept.len() > plain_n, "a continued weak detection is kept");
+    assert!(kept.iter().skip(plain_n).all(|d| d.score < 0.25));
+    let empty = vec![0u8; w * h];
+    labels.fill(0);
+    let alone = weak
+        .segment_rgbd(rgb, None, Some(&empty), w, h, &mut labels)
+        .unwrap();
+    assert_eq!(alone.len(), plain_n, "without the object before, none is");
+}

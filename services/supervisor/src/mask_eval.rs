@@ -27,7 +27,8 @@ use camera_reader::source::{tum_folder, MaskList};
 use onnx_runtime::init_runtime;
 use pipeline::config::PipelineConfig;
 use pipeline::progress::Progress;
-use propagator::newcomers::{DepthImage, NewcomerCheck};
+use pipeline::views::DepthImage;
+use propagator::newcomers::NewcomerCheck;
 
 use crate::ignore::IgnoreRegions;
 use propagator::propagate::{LkPropagator, PropagatorParams};
@@ -337,6 +338,9 @@ pub fn evaluate(
     let (mut seg_cause, mut prop_cause) = (ByCause::default(), ByCause::default());
     let occlusion = Occlusion::open(dataset)?;
     let mut saved = save.map(SavedMasks::create).transpose()?;
+    // The frame before's labels: the segmenter keeps a weak detection that
+    // continues an object there, as in the pipeline.
+    let mut previous_labels: Vec<u8> = Vec::new();
     let mut progress = Progress::new("masks-eval", frames.len() as u64);
     for (k, frame) in frames.iter().enumerate() {
         let rgb = image::open(&frame.rgb)
@@ -364,26 +368,29 @@ pub fn evaluate(
         };
         since_segment = offset;
         requested = false;
-        let t = std::time::Instant::now();
+        // The frame's depth, as the pipeline's services get it (weak
+        // detections are confirmed by it; what comes into view across a
+        // border is checked against it; the newcomer check), decoded
+        // before the clock starts.
+        let depth = match &frame.depth {
+            Some(path) => {
+                depth_buf.resize(w * h * 2, 0);
+                decode_depth_into(path, (w as u32, h as u32), &mut depth_buf)?;
+                Some(DepthImage {
+                    raw: &depth_buf,
+                    per_metre: config.source.depth_scale,
+                })
+            }
+            _ => None,
+        };
         if offset == 0 {
-            let instances = segmenter.segment(rgb.as_raw(), w, h, &mut labels)?;
+            let t = std::time::Instant::now();
+            let previous = (k > 0).then_some(&previous_labels[..]);
+            let instances =
+                segmenter.segment_rgbd(rgb.as_raw(), depth, previous, w, h, &mut labels)?;
             seg_ms.push(t.elapsed().as_secs_f64() * 1e3);
             propagator.prompt_with(rgb.as_raw(), w, h, &labels, &instances);
         } else {
-            // The frame's depth, as the pipeline's propagator gets it (what
-            // comes into view across a border is checked against it; the
-            // newcomer check; decoded before the clock starts).
-            let depth = match &frame.depth {
-                Some(path) => {
-                    depth_buf.resize(w * h * 2, 0);
-                    decode_depth_into(path, (w as u32, h as u32), &mut depth_buf)?;
-                    Some(DepthImage {
-                        raw: &depth_buf,
-                        per_metre: config.source.depth_scale,
-                    })
-                }
-                _ => None,
-            };
             let t = std::time::Instant::now();
             propagator.propagate_rgbd(rgb.as_raw(), depth, w, h, &mut labels);
             prop_ms.push(t.elapsed().as_secs_f64() * 1e3);
@@ -420,6 +427,7 @@ pub fn evaluate(
                 }
             }
         }
+        previous_labels = labels;
         progress.inc();
     }
     progress.finish();

@@ -186,6 +186,18 @@ pub struct YoloSeg {
     session: Session,
     settings: YoloSettings,
     input: Vec<f32>,
+    weak: WeakCounts,
+}
+
+/// Weak detections (below `score_threshold`) over a run, for the exit log.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct WeakCounts {
+    /// Kept: they continue an object of the masks before.
+    pub continued: u64,
+    /// Kept: depth shows them in front of their surroundings.
+    pub in_front: u64,
+    /// Left out: no evidence.
+    pub refused: u64,
 }
 
 impl YoloSeg {
@@ -211,6 +223,7 @@ impl YoloSeg {
             session,
             input: vec![0.0; 3 * n * n],
             settings,
+            weak: WeakCounts::default(),
         };
         // Warm-up: the first run allocates and plans; do it before frames come.
         let blank = vec![114u8; 64 * 48 * 3];
@@ -227,6 +240,11 @@ impl YoloSeg {
         labels: &mut [u8],
     ) -> Result<Vec<Instance>> {
         self.segment_rgbd(rgb, None, None, width, height, labels)
+    }
+
+    /// Weak detections kept and left out so far.
+    pub fn weak_counts(&self) -> WeakCounts {
+        self.weak
     }
 
     /// [`Self::segment`] with what can confirm a weak detection
@@ -279,10 +297,22 @@ impl YoloSeg {
             width: shape1[3] as usize,
         };
         let foreground = self.settings.foreground;
+        let weak = &mut self.weak;
         let keep = |d: &Detection, pixels: &[u32]| {
-            d.score >= strong
-                || previous.is_some_and(|p| continues(pixels, p))
-                || depth.is_some_and(|depth| stands_out(pixels, &depth, width, height, &foreground))
+            if d.score >= strong {
+                return true;
+            }
+            let (kept, counter) = if previous.is_some_and(|p| continues(pixels, p)) {
+                (true, &mut weak.continued)
+            } else if depth
+                .is_some_and(|depth| stands_out(pixels, &depth, width, height, &foreground))
+            {
+                (true, &mut weak.in_front)
+            } else {
+                (false, &mut weak.refused)
+            };
+            *counter += 1;
+            kept
         };
         Ok(paint_masks(
             &dets, &protos, &lb, width, height, labels, keep,
@@ -293,6 +323,18 @@ impl YoloSeg {
 impl MaskModel for YoloSeg {
     fn name(&self) -> &str {
         "yolov8-seg"
+    }
+
+    fn summary(&self) -> Option<String> {
+        let w = self.weak;
+        Some(format!(
+            "weak detections (score {:.2}-{:.2}) kept: {} continuing an object of the masks before, {} in front of their surroundings in depth; left out: {}",
+            self.settings.weak_score_threshold,
+            self.settings.score_threshold,
+            w.continued,
+            w.in_front,
+            w.refused
+        ))
     }
 
     fn infer(&mut self, frame: &FrameView, labels: &mut [u8]) -> Result<Vec<Instance>> {

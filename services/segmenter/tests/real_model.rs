@@ -425,6 +425,8 @@ fn weak_detections_need_depth_or_a_followed_object_to_become_masks() {
         .segment_rgbd(rgb, None, Some(&previous), w, h, &mut labels)
         .unwrap();
     assert!(kept.len() > plain_n, "a continued weak detection is kept");
+    assert!(weak.weak_counts().continued >= (kept.len() - plain_n) as u64);
+    assert!(weak.weak_counts().refused > 0, "{:?}", weak.weak_counts());
     assert!(kept.iter().skip(plain_n).all(|d| d.score < 0.25));
     let empty = vec![0u8; w * h];
     labels.fill(0);

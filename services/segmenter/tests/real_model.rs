@@ -211,18 +211,8 @@ fn an_input_size_the_model_does_not_take_is_a_configuration_error() {
 /// The segmenter at `size` (the export of that size, from ../shared/models
 /// or what `just setup` derives into .cache/models).
 fn model_at(size: usize) -> YoloSeg {
-    let (_, file, _) = segmenter::onnx::export_for(size).unwrap();
-    let path = [
-        repo().join("../shared/models").join(file),
-        repo().join(pipeline::provision::DERIVED_MODELS).join(file),
-    ]
-    .into_iter()
-    .find(|p| p.is_file())
-    .unwrap_or_else(|| {
-        panic!("{file}: not in ../shared/models or .cache/models; run `just setup`")
-    });
     let cfg = ServiceConfig {
-        model_path: Some(path),
+        model_path: Some(export_path(size)),
         input_size: Some(size as u32),
         classes: CLASSES.iter().map(|s| s.to_string()).collect(),
         score_threshold: Some(0.25),
@@ -233,6 +223,19 @@ fn model_at(size: usize) -> YoloSeg {
         YoloSettings::from_config(&cfg).unwrap(),
     )
     .unwrap()
+}
+
+/// The export of `size` in ../shared/models or where `just setup` derives
+/// it (.cache/models).
+fn export_path(size: usize) -> PathBuf {
+    let (_, file, _) = segmenter::onnx::export_for(size).unwrap();
+    [
+        repo().join("../shared/models").join(file),
+        repo().join(pipeline::provision::DERIVED_MODELS).join(file),
+    ]
+    .into_iter()
+    .find(|p| p.is_file())
+    .unwrap_or_else(|| panic!("{file}: not in ../shared/models or .cache/models; run `just setup`"))
 }
 
 /// Instances of `labels` (1-based) as pixel sets with their class.
@@ -302,16 +305,8 @@ fn the_480_and_640_rewrites_agree_with_the_320_export_on_large_objects() {
 /// The default export (480) keeping detections from `score` and weaker
 /// ones down to `weak` on evidence (`weak_score_threshold`).
 fn model_480(score: f32, weak: f32) -> YoloSeg {
-    let (_, file, _) = segmenter::onnx::export_for(480).unwrap();
-    let path = [
-        repo().join("../shared/models").join(file),
-        repo().join(pipeline::provision::DERIVED_MODELS).join(file),
-    ]
-    .into_iter()
-    .find(|p| p.is_file())
-    .unwrap_or_else(|| panic!("{file}: run `just setup`"));
     let cfg = ServiceConfig {
-        model_path: Some(path),
+        model_path: Some(export_path(480)),
         classes: pipeline::config::DEFAULT_DYNAMIC_CLASSES
             .iter()
             .map(|s| s.to_string())

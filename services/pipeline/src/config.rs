@@ -1200,6 +1200,10 @@ mod tests {
                 "services.segmenter.score_threshold",
             ),
             (
+                "[services.segmenter]\nweak_score_threshold = -0.1\n",
+                "services.segmenter.weak_score_threshold",
+            ),
+            (
                 "[services.segmenter]\niou_threshold = 5.0\n",
                 "services.segmenter.iou_threshold",
             ),

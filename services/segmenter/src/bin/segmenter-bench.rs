@@ -2,7 +2,10 @@
 //! (letterbox + YOLOv8n-seg inference + decoding + mask painting) on real
 //! TUM frames, ONNX Runtime with the configured number of threads, for each
 //! network input size (320, 480, 640: the exports of `segmenter::onnx::MODELS`),
-//! back to back in one run so that the ratios compare like with like.
+//! back to back in one run so that the ratios compare like with like. Each
+//! frame is segmented as the service does it: with its depth and the frame
+//! before's labels, which weak detections (`weak_score_threshold`) are
+//! checked against.
 //!
 //! `segmenter-bench [--frames N] [--threads T] [--sizes 320,480,640] [--config FILE] [--out FILE]`
 
@@ -10,11 +13,13 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
+use camera_reader::decode::decode_depth_into;
 use camera_reader::source::tum_folder;
 use clap::Parser;
 use onnx_runtime::init_runtime;
 use pipeline::config::PipelineConfig;
 use pipeline::stats::percentile;
+use pipeline::views::DepthImage;
 use segmenter::onnx::{YoloSeg, YoloSettings};
 
 #[derive(Debug, Parser)]
@@ -46,20 +51,40 @@ struct Args {
 fn main() -> Result<()> {
     let args = Args::parse();
     let config = PipelineConfig::load_or_default(args.config.as_deref())?;
-    let files: Vec<PathBuf> = tum_folder(&args.dataset, 0.02)?
+    let entries: Vec<_> = tum_folder(&args.dataset, 0.02)?
         .into_iter()
-        .map(|f| f.rgb)
         .take(args.frames)
         .collect();
-    let images: Vec<_> = files
+    let images: Vec<_> = entries
         .iter()
         .map(|f| {
-            image::open(f)
+            image::open(&f.rgb)
                 .map(|i| i.to_rgb8())
-                .with_context(|| format!("{}", f.display()))
+                .with_context(|| format!("{}", f.rgb.display()))
         })
         .collect::<Result<_>>()?;
     let (w, h) = (images[0].width() as usize, images[0].height() as usize);
+    // Depth as the camera-reader decodes it (native-endian u16), if any.
+    let depths: Vec<Option<Vec<u8>>> = entries
+        .iter()
+        .map(|f| {
+            f.depth
+                .as_ref()
+                .map(|path| {
+                    let mut raw = vec![0u8; w * h * 2];
+                    decode_depth_into(path, (w as u32, h as u32), &mut raw)
+                        .with_context(|| format!("{}", path.display()))
+                        .map(|()| raw)
+                })
+                .transpose()
+        })
+        .collect::<Result<_>>()?;
+    let depth_of = |k: usize| {
+        depths[k].as_deref().map(|raw| DepthImage {
+            raw,
+            per_metre: config.source.depth_scale,
+        })
+    };
     println!(
         "segmenter YOLOv8n-seg, {w}x{h} frames, {} threads, {} frames per input size",
         args.threads,
@@ -79,18 +104,22 @@ fn main() -> Result<()> {
         cfg.model_path = None;
         let settings = YoloSettings::from_config(&cfg)?;
         let mut model = YoloSeg::load(init_runtime(&config.onnxruntime)?, settings)?;
-        let mut labels = vec![0u8; w * h];
+        let (mut labels, mut previous) = (vec![0u8; w * h], vec![0u8; w * h]);
         // Warm-up outside the measurement.
         for img in images.iter().take(5) {
             model.segment(img.as_raw(), w, h, &mut labels)?;
         }
         let mut ms = Vec::with_capacity(images.len());
         let mut found = 0;
-        for img in &images {
+        for (k, img) in images.iter().enumerate() {
             labels.fill(0);
+            let before = (k > 0).then_some(previous.as_slice());
             let t = Instant::now();
-            found += model.segment(img.as_raw(), w, h, &mut labels)?.len();
+            found += model
+                .segment_rgbd(img.as_raw(), depth_of(k), before, w, h, &mut labels)?
+                .len();
             ms.push(t.elapsed().as_secs_f64() * 1e3);
+            std::mem::swap(&mut labels, &mut previous);
         }
         ms.sort_by(f64::total_cmp);
         let (p50, p99) = (percentile(&ms, 50.0), percentile(&ms, 99.0));

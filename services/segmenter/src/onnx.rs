@@ -24,10 +24,10 @@ pub struct YoloSettings {
     pub model: PathBuf,
     pub input_size: usize,
     pub score_threshold: f32,
-    /// Detections from here up to `score_threshold` are kept where depth
-    /// shows them standing in front of their surroundings
-    /// ([`crate::foreground`]); at or above `score_threshold`, none is kept
-    /// that way.
+    /// Detections from here up to `score_threshold` are kept where they
+    /// continue an object of the masks before or depth shows them standing
+    /// in front of their surroundings ([`crate::foreground`]); at or above
+    /// `score_threshold`, none is kept that way.
     pub weak_score_threshold: f32,
     pub foreground: ForegroundParams,
     pub iou_threshold: f32,

@@ -77,7 +77,7 @@ pub struct DepthImage<'a> {
 
 impl DepthImage<'_> {
     /// The raw value at a pixel, None where there is no measurement.
-    pub fn raw_at(&self, x: usize, y: usize, width: usize) -> Option<f64> {
+    fn raw_at(&self, x: usize, y: usize, width: usize) -> Option<f64> {
         let i = (y * width + x) * 2;
         let raw = u16::from_ne_bytes([*self.raw.get(i)?, *self.raw.get(i + 1)?]);
         (raw > 0 && self.per_metre > 0.0).then_some(raw as f64)

@@ -1,15 +1,19 @@
-//! Depth evidence for a weak detection: does its mask stand in front of
-//! what surrounds it?
+//! Evidence that keeps a weak detection: does its mask continue an object
+//! of the frame before ([`continues`]), or stand in front of what surrounds
+//! it in depth ([`stands_out`])?
 //!
 //! The segmenter keeps detections down to `score_threshold`; below it, the
 //! network still finds people that are cut by the border, partly hidden or
 //! blurred, among many false detections on clutter (at 0.05 on the static
-//! shared sequence: 23 % of the features masked against 10 %). A person (or
+//! shared sequence: 23 % of the features masked against 10 %). A tracker
+//! keeps a low-score detection that extends a track; the same holds for a
+//! mask lying on an object the propagator followed. And a person (or
 //! any object the class list names) is a compact blob in depth with the room
 //! behind it; clutter on a desk, a wall or a desk's edge is continuous in
-//! depth with its surroundings. So a weak detection is kept only where its
-//! mask is compact in depth and most of a ring around it (leaving out what
-//! is in front of it: an occluding desk) lies clearly behind it.
+//! depth with its surroundings. So a weak detection is kept only where it
+//! continues such an object, or where its mask is compact in depth and most
+//! of a ring around it (leaving out what is in front of it: an occluding
+//! desk) lies clearly behind it.
 
 use pipeline::views::DepthImage;
 

@@ -5,8 +5,9 @@
 //!   and its inverse.
 //! - [`yolo`]: YOLOv8-seg output decoding (class-wise NMS, prototype masks),
 //!   pure Rust, testable without a model.
-//! - [`foreground`]: depth evidence that keeps a weak detection (a mask
-//!   standing in front of its surroundings).
+//! - [`foreground`]: evidence that keeps a weak detection (a mask on an
+//!   object of the frame before, or standing in front of its surroundings
+//!   in depth).
 //! - [`onnx`]: the YOLOv8-seg backend on ONNX Runtime, a `MaskModel`.
 //! - [`ground_truth`]: the exact masks of a synthesised sequence (the
 //!   ablation's reference row), a `MaskModel` too.

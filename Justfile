@@ -119,6 +119,27 @@ bench-models: build setup
 bench-slam dataset=tum *args="": build
     ./target/release/slam-bench "{{dataset}}" {{args}}
 
+# SLAM accuracy with frames left out as real time leaves them (the lever of the real-time ATE): ATE on every frame, then on every 2nd frame (2 offsets), every 3rd (3), and 30 % / 45 % dropped at random (3 seeds each); median, mean and worst over the 11 copies, and the median's ratio to every frame's.
+bench-dropped dataset=tum *args="": build
+    #!/usr/bin/env bash
+    set -euo pipefail
+    mkdir -p bench-results/dropped
+    ate() { ./target/release/slam-bench "{{dataset}}" {{args}} "$@" --out "bench-results/dropped/$(echo "$*" | tr -c 'a-z0-9.\n' _).txt" 2>/dev/null | sed -n 's/^ATE rmse \([0-9.]*\) m.*/\1/p'; }
+    full=$(ate --keep-every 1)
+    echo "every frame: ATE $full m"
+    values=()
+    for copy in "--keep-every 2 --offset 0" "--keep-every 2 --offset 1" \
+                "--keep-every 3 --offset 0" "--keep-every 3 --offset 1" "--keep-every 3 --offset 2" \
+                "--drop-share 0.3 --seed 1" "--drop-share 0.3 --seed 2" "--drop-share 0.3 --seed 3" \
+                "--drop-share 0.45 --seed 1" "--drop-share 0.45 --seed 2" "--drop-share 0.45 --seed 3"; do
+        v=$(ate $copy)
+        echo "$copy: ATE ${v:-none (lost)} m"
+        values+=("${v:-1}")
+    done
+    printf '%s\n' "${values[@]}" | sort -n | awk -v full="$full" '{ v[NR] = $1; s += $1 } END {
+        m = v[int((NR + 1) / 2)]
+        printf "frames left out, %d copies: median %.4f m (%.2fx every frame), mean %.4f m, worst %.4f m\n", NR, m, m / full, s / NR, v[NR] }'
+
 # The whole pipeline in real time on the shared sequence: 30 and 60 fps, each without and with 2 busy processes pinned to the cores; tracked fps, drops, end-to-end p50/p99, masked share, ATE next to lockstep's (writes bench-results/realtime.json).
 bench-realtime *args="": build setup
     ./target/release/realtime-bench {{args}}

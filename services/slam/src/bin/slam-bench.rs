@@ -6,7 +6,11 @@
 //! `slam-bench [DATASET] [--masks] [--skip N] [--limit N] [--threads N] [--local-ba N]
 //! [--readout S] [--inline-mapping] [--no-triangulation] [--fusion] [--loop-closing [--no-global-ba]]
 //! [--features N] [--match-ratio R] [--monocular] [--extractor own|kornia]
-//! [--verbose] [--out trajectory.txt]`
+//! [--keep-every N [--offset K]] [--drop-share P [--seed S]] [--verbose] [--out trajectory.txt]`
+//! `--keep-every` and `--drop-share` leave frames out as real time does on a
+//! busy machine (the newest frame wins, the ones between are dropped):
+//! `just bench-dropped` runs a set of such copies and prints their ATE
+//! against every frame's.
 //! With more than one extraction thread it also measures extraction alone
 //! with 1 and N threads on the same frames and prints the ratio.
 //! `--masks` feeds the ground-truth masks of a `dynslam synth` folder.
@@ -42,6 +46,20 @@ struct Args {
     skip: usize,
     #[arg(long)]
     limit: Option<usize>,
+    /// Track only every Nth frame (after --skip and --limit), as real time
+    /// does when the SLAM takes N frame periods a frame.
+    #[arg(long, default_value_t = 1)]
+    keep_every: usize,
+    /// With --keep-every: the first frame kept (0..N).
+    #[arg(long, default_value_t = 0)]
+    offset: usize,
+    /// Leave out this share of the frames at random (0..0.9; the first frame
+    /// is always kept), as real time does under uneven load.
+    #[arg(long, default_value_t = 0.0)]
+    drop_share: f64,
+    /// Seed of --drop-share's choice.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
     /// Print every frame's state, features, inliers and keyframe flag.
     #[arg(long)]
     verbose: bool,
@@ -115,6 +133,41 @@ struct Args {
     extractor: String,
 }
 
+/// The frames left after `--keep-every`/`--offset` and `--drop-share`.
+fn left_out(frames: Vec<FrameEntry>, args: &Args) -> Result<Vec<FrameEntry>> {
+    anyhow::ensure!(
+        args.keep_every >= 1,
+        "--keep-every {}: must be at least 1",
+        args.keep_every
+    );
+    anyhow::ensure!(
+        args.offset < args.keep_every,
+        "--offset {}: must be below --keep-every ({})",
+        args.offset,
+        args.keep_every
+    );
+    anyhow::ensure!(
+        (0.0..0.9).contains(&args.drop_share),
+        "--drop-share {}: not a share of the frames in [0, 0.9)",
+        args.drop_share
+    );
+    let mut rng = slam_core::rng::SplitMix64::new(args.seed);
+    let kept: Vec<FrameEntry> = frames
+        .into_iter()
+        .skip(args.offset)
+        .step_by(args.keep_every)
+        .enumerate()
+        .filter(|(i, _)| *i == 0 || rng.uniform(0.0, 1.0) >= args.drop_share)
+        .map(|(_, f)| f)
+        .collect();
+    anyhow::ensure!(
+        kept.len() >= 2,
+        "only {} frame(s) left after --keep-every/--drop-share",
+        kept.len()
+    );
+    Ok(kept)
+}
+
 fn orb_backend(name: &str) -> Result<OrbBackend> {
     match name {
         "own" => Ok(OrbBackend::Own),
@@ -152,6 +205,7 @@ fn main() -> Result<()> {
     if let Some(n) = args.limit {
         frames.truncate(n);
     }
+    let frames = left_out(frames, &args)?;
     anyhow::ensure!(
         (1..=1000).contains(&args.repeat),
         "--repeat {}: not a number of passes (1..=1000)",

@@ -538,3 +538,50 @@ fn peak_rss_mib() -> f64 {
         })
         .map_or(f64::NAN, |kb| kb / 1024.0)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frames(n: usize) -> Vec<FrameEntry> {
+        (0..n)
+            .map(|i| FrameEntry {
+                timestamp: i as f64 / 30.0,
+                rgb: PathBuf::from(format!("rgb/{i}.png")),
+                depth: None,
+            })
+            .collect()
+    }
+
+    fn kept(args: &[&str]) -> Result<Vec<usize>> {
+        let args = Args::try_parse_from(["slam-bench"].iter().chain(args))?;
+        Ok(left_out(frames(30), &args)?
+            .iter()
+            .map(|f| (f.timestamp * 30.0).round() as usize)
+            .collect())
+    }
+
+    #[test]
+    fn frames_are_left_out_as_asked_and_bad_requests_named() {
+        assert_eq!(kept(&[]).unwrap(), (0..30).collect::<Vec<_>>());
+        assert_eq!(
+            kept(&["--keep-every", "3", "--offset", "1"]).unwrap(),
+            (1..30).step_by(3).collect::<Vec<_>>()
+        );
+        // A seeded random share: the same frames every time, the first kept.
+        let a = kept(&["--drop-share", "0.45", "--seed", "2"]).unwrap();
+        assert_eq!(a, kept(&["--drop-share", "0.45", "--seed", "2"]).unwrap());
+        assert_ne!(a, kept(&["--drop-share", "0.45", "--seed", "3"]).unwrap());
+        assert_eq!(a[0], 0);
+        assert!((8..=24).contains(&a.len()), "{} of 30 kept", a.len());
+        for (bad, named) in [
+            (&["--keep-every", "0"][..], "--keep-every 0"),
+            (&["--keep-every", "2", "--offset", "2"][..], "--offset 2"),
+            (&["--drop-share", "0.95"][..], "--drop-share 0.95"),
+            (&["--keep-every", "29", "--offset", "28"][..], "only 1 frame"),
+        ] {
+            let e = kept(bad).unwrap_err().to_string();
+            assert!(e.contains(named), "{bad:?}: {e}");
+        }
+    }
+}

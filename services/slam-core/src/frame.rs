@@ -8,6 +8,7 @@ use crate::features::mask::DynamicMask;
 use crate::features::orb::{Descriptor, GrayU8, KeyPoint, OrbExtractor};
 use crate::map::KeyFrameObservation;
 use crate::params::SlamParams;
+use crate::tracking::small_image::SmallImage;
 
 /// An RGB-D image pair with its optional dynamic-object mask.
 #[derive(Debug, Clone, Copy)]
@@ -59,6 +60,9 @@ pub struct Frame {
     /// Image columns and rows (the rolling shutter's extent is the rows).
     pub width: usize,
     pub height: usize,
+    /// The image averaged down and blurred: the turn since the last frame
+    /// (`tracking::small_image`).
+    pub small: Option<SmallImage>,
 }
 
 impl Frame {
@@ -112,7 +116,11 @@ impl Frame {
             })
             .collect();
         correct(&kps, &mut un, &mut depth);
+        let small = params
+            .turn_from_images
+            .then(|| SmallImage::new(&gray, input.mask, camera));
         Self {
+            small,
             grid: Grid::new(&un, width, height),
             kps,
             un,
@@ -149,6 +157,7 @@ impl Frame {
             masked: self.masked + self.kps.len() - kept.len(),
             width: self.width,
             height: self.height,
+            small: self.small.clone(),
         };
         (frame, kept)
     }

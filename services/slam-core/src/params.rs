@@ -99,6 +99,12 @@ pub struct SlamParams {
     /// ([`crate::tracking::motion_check`]), movers no mask names. Off by
     /// default until it finds movers reliably (README "Motion check").
     pub motion_check: bool,
+    /// After frames were left out (real time on a busy machine), tracking
+    /// starts from the turn found by aligning the frame's small image with
+    /// the last tracked one's ([`crate::tracking::small_image`]) where it
+    /// differs from the motion model's by more than a degree (a hand-held
+    /// camera reversing its turn).
+    pub turn_from_images: bool,
 }
 
 impl SlamParams {
@@ -141,6 +147,7 @@ impl Default for SlamParams {
             loop_closing: false,
             global_bundle_adjustment: true,
             motion_check: false,
+            turn_from_images: true,
         }
     }
 }

@@ -610,6 +610,7 @@ impl System {
             return Decision::None;
         }
         self.tracking.accept(tracked, timestamp);
+        self.tracking.remember_image(frame, &self.moving_regions);
         if started {
             return Decision::Inserted;
         }

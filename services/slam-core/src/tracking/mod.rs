@@ -12,6 +12,7 @@ mod local_map;
 pub mod motion_check;
 mod relocalisation;
 pub(crate) mod rolling_shutter;
+pub mod small_image;
 
 use std::sync::Arc;
 
@@ -27,6 +28,21 @@ use crate::place_recognition::Vocabulary;
 
 /// Tracked frames the rolling-shutter correction estimates the motion over.
 pub const MOTION_HISTORY: usize = 3;
+
+/// Below this the images' turn and the motion model's agree, and tracking
+/// starts from the motion model's prediction (which has the translation and
+/// is smoother). The two differ by 0.46 degrees at the median on every frame
+/// of fr1_rpy, 0.92 on every second (90th percentile 1.1 / 3.1); with every
+/// difference taken (0 degrees, on every frame too) slam-bench on the
+/// synthesised people sequences came out worse (docs/measurements.md, "Turn
+/// from the images").
+const TURN_DISAGREEMENT_DEG: f64 = 1.0;
+
+/// Frames were left out since the last tracked one when the time since it
+/// is more than this many of the shortest interval seen (fr1's intervals
+/// jitter between 27 and 40 ms: every frame never reaches 1.5 of 27). On
+/// every frame the turn is not used: a large unmasked mover pulls it.
+const GAP: f64 = 1.5;
 
 /// Whether a live keyframe of `map` older than the `recent` newest was
 /// taken within `metres` and `degrees` of `pose_cw` (it sees what a new
@@ -115,6 +131,11 @@ pub struct Tracking {
     resumed: bool,
     /// The keyframe the last relocalisation found the camera at.
     pub(crate) relocalised_at: Option<usize>,
+    /// The last tracked frame's small image (the turn since it).
+    last_image: Option<small_image::SmallImage>,
+    /// The shortest time between two tracked frames so far: the camera's
+    /// frame period, where none was left out.
+    shortest_interval: Option<f64>,
 }
 
 impl Tracking {
@@ -134,6 +155,8 @@ impl Tracking {
             since_relocalisation: None,
             resumed: false,
             relocalised_at: None,
+            last_image: None,
+            shortest_interval: None,
         }
     }
 
@@ -217,13 +240,56 @@ impl Tracking {
         renormalized(&(step * last))
     }
 
+    /// After a gap ([`GAP`]), the motion model's prediction with the turn
+    /// since the last tracked frame found from the images ([`small_image`])
+    /// instead of its own, where the two differ by more than
+    /// [`TURN_DISAGREEMENT_DEG`]; None otherwise, without a last image, or
+    /// when the alignment fails.
+    fn turned(
+        &self,
+        frame: &Frame,
+        last: &Isometry3<f64>,
+        predicted: &Isometry3<f64>,
+        timestamp: f64,
+    ) -> Option<Isometry3<f64>> {
+        let since = self.last_timestamp().map(|t| timestamp - t)?;
+        let gap = self
+            .shortest_interval
+            .is_some_and(|shortest| since > GAP * shortest);
+        if !self.params.turn_from_images || !gap {
+            return None;
+        }
+        let (older, newer) = (self.last_image.as_ref()?, frame.small.as_ref()?);
+        let step = predicted * last.inverse();
+        let turn = small_image::turn_between(older, newer, &step.rotation)?;
+        ((turn.inverse() * step.rotation).angle() > TURN_DISAGREEMENT_DEG.to_radians())
+            .then(|| renormalized(&(Isometry3::from_parts(step.translation, turn) * last)))
+    }
+
+    /// Remembers a tracked frame's small image for the next frame's turn,
+    /// without the regions the motion check found moving in it.
+    pub(crate) fn remember_image(&mut self, frame: &Frame, moving: &[motion_check::MovingRegion]) {
+        self.last_image = frame.small.clone();
+        if let Some(image) = self.last_image.as_mut() {
+            image.without_boxes(moving.iter().map(|r| (r.min, r.max)));
+        }
+    }
+
     /// Tracks `frame`, taken at `timestamp`, against `map` (which has at
     /// least one keyframe).
     pub(crate) fn track(&mut self, map: &mut Map, frame: &Frame, timestamp: f64) -> Tracked {
         let local = self.local_points(map);
         if let Some(last) = self.last_pose.filter(|_| !self.lost) {
             let predicted = self.predicted(&last, timestamp);
-            for (start, radius) in [(predicted, 15.0), (last, 30.0)] {
+            // After frames were left out, where the images say the camera
+            // turned otherwise than the motion model does, their turn is
+            // tried first.
+            let turned = self.turned(frame, &last, &predicted, timestamp);
+            let starts = turned
+                .map(|t| (t, 15.0))
+                .into_iter()
+                .chain([(predicted, 15.0), (last, 30.0)]);
+            for (start, radius) in starts {
                 if let Some(t) = self.track_from(map, frame, &local, &start, radius) {
                     return Tracked {
                         state: TrackingState::Ok,
@@ -337,6 +403,9 @@ impl Tracking {
         let pose_cw = tracked.pose_cw;
         if let Some(last) = self.last_pose {
             let dt = self.last_timestamp().map_or(0.0, |t| timestamp - t);
+            if dt > 1e-3 {
+                self.shortest_interval = Some(self.shortest_interval.map_or(dt, |s| s.min(dt)));
+            }
             self.velocity = Some((renormalized(&(pose_cw * last.inverse())), dt));
         }
         self.last_pose = Some(pose_cw);
@@ -356,6 +425,7 @@ impl Tracking {
     /// A frame that could not be tracked: the motion model is stale.
     pub(crate) fn mark_lost(&mut self) {
         self.lost = true;
+        self.last_image = None;
         self.resumed = false;
         self.velocity = None;
         self.recent.clear();

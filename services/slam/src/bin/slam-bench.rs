@@ -5,7 +5,7 @@
 //!
 //! `slam-bench [DATASET] [--masks] [--skip N] [--limit N] [--threads N] [--local-ba N]
 //! [--readout S] [--inline-mapping] [--no-triangulation] [--fusion] [--loop-closing [--no-global-ba]]
-//! [--features N] [--match-ratio R] [--monocular] [--extractor own|kornia]
+//! [--features N] [--match-ratio R] [--monocular] [--extractor own|kornia] [--no-image-turn]
 //! [--keep-every N [--offset K]] [--drop-share P [--seed S]] [--verbose] [--out trajectory.txt]`
 //! `--keep-every` and `--drop-share` leave frames out as real time does on a
 //! busy machine (the newest frame wins, the ones between are dropped):
@@ -106,6 +106,10 @@ struct Args {
     /// that move unlike the camera; prints how many were dropped.
     #[arg(long)]
     motion_check: bool,
+    /// Track from the motion model's turn alone, not the one the small
+    /// images give where the two disagree (to compare).
+    #[arg(long)]
+    no_image_turn: bool,
     /// With --loop-closing: no global bundle adjustment after a loop
     /// correction (the essential graph alone).
     #[arg(long)]
@@ -240,6 +244,7 @@ fn main() -> Result<()> {
     params.fuse_points = args.fusion;
     params.loop_closing = args.loop_closing;
     params.motion_check = args.motion_check;
+    params.turn_from_images = !args.no_image_turn;
     params.global_bundle_adjustment = !args.no_global_ba;
     if let Some(n) = args.features {
         anyhow::ensure!(n >= 50, "--features {n}: at least 50 are needed to track");
@@ -578,7 +583,10 @@ mod tests {
             (&["--keep-every", "0"][..], "--keep-every 0"),
             (&["--keep-every", "2", "--offset", "2"][..], "--offset 2"),
             (&["--drop-share", "0.95"][..], "--drop-share 0.95"),
-            (&["--keep-every", "29", "--offset", "28"][..], "only 1 frame"),
+            (
+                &["--keep-every", "29", "--offset", "28"][..],
+                "only 1 frame",
+            ),
         ] {
             let e = kept(bad).unwrap_err().to_string();
             assert!(e.contains(named), "{bad:?}: {e}");

@@ -5,13 +5,13 @@
 //! (real time on a busy machine) the constant-velocity model then puts the
 //! map points further from their keypoints than tracking's search radius.
 //!
-//! Each image is averaged down by 8 (then by 2 more) and blurred; the rotation (and a
-//! brightness offset) that warps the older image onto the newer is found by
-//! Gauss-Newton on the photometric error, coarse to fine, from the motion
-//! model's rotation. Translation is left to the motion model: at this size
-//! the turn is what moves the image. Pixels of the dynamic mask (in either
-//! image, grown by the blur) take no part: people walking across the view
-//! would pull the turn their way.
+//! Each image is averaged down by 8 (and that by 2 more) and blurred; the
+//! rotation (and a brightness offset) that warps the older image onto the
+//! newer is found by Gauss-Newton on the photometric error, coarse to fine,
+//! from the motion model's rotation. Translation is left to the motion
+//! model: at this size the turn is what moves the image. Pixels of the
+//! dynamic mask (in either image, grown by the blur) take no part: people
+//! walking across the view would pull the turn their way.
 
 use nalgebra::{Matrix4, UnitQuaternion, Vector3, Vector4};
 
@@ -44,7 +44,8 @@ struct Level {
     cy: f64,
 }
 
-/// A frame's small images (about 6 KiB).
+/// A frame's small images, with gradients and mask (about 80 KB for
+/// 640x480).
 #[derive(Clone)]
 pub struct SmallImage {
     levels: Vec<Level>,

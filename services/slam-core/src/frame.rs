@@ -2,6 +2,8 @@
 //! undistorted, with their depth, colour and descriptors, bucketed in a
 //! grid for search by projection.
 
+use std::sync::Arc;
+
 use crate::camera::{Bounds, Camera};
 use crate::features::grid::Grid;
 use crate::features::mask::DynamicMask;
@@ -61,8 +63,9 @@ pub struct Frame {
     pub width: usize,
     pub height: usize,
     /// The image averaged down and blurred: the turn since the last frame
-    /// (`tracking::small_image`).
-    pub small: Option<SmallImage>,
+    /// (`tracking::small_image`). Shared: tracking keeps the last one, a
+    /// frame without some keypoints keeps its image.
+    pub small: Option<Arc<SmallImage>>,
 }
 
 impl Frame {
@@ -118,7 +121,7 @@ impl Frame {
         correct(&kps, &mut un, &mut depth);
         let small = params
             .turn_from_images
-            .then(|| SmallImage::new(&gray, input.mask, camera));
+            .then(|| Arc::new(SmallImage::new(&gray, input.mask, camera)));
         Self {
             small,
             grid: Grid::new(&un, width, height),

@@ -132,7 +132,7 @@ pub struct Tracking {
     /// The keyframe the last relocalisation found the camera at.
     pub(crate) relocalised_at: Option<usize>,
     /// The last tracked frame's small image (the turn since it).
-    last_image: Option<small_image::SmallImage>,
+    last_image: Option<Arc<small_image::SmallImage>>,
     /// The shortest time between two tracked frames so far: the camera's
     /// frame period, where none was left out.
     shortest_interval: Option<f64>,
@@ -270,8 +270,9 @@ impl Tracking {
     /// without the regions the motion check found moving in it.
     pub(crate) fn remember_image(&mut self, frame: &Frame, moving: &[motion_check::MovingRegion]) {
         self.last_image = frame.small.clone();
-        if let Some(image) = self.last_image.as_mut() {
-            image.without_boxes(moving.iter().map(|r| (r.min, r.max)));
+        // Copied only where the motion check found something.
+        if let (Some(image), false) = (self.last_image.as_mut(), moving.is_empty()) {
+            Arc::make_mut(image).without_boxes(moving.iter().map(|r| (r.min, r.max)));
         }
     }
 

@@ -54,12 +54,23 @@ impl Tracking {
     }
 
     /// The camera motion (camera from camera) the rolling-shutter
-    /// correction uses, and the seconds it spans: from the oldest remembered
-    /// tracked frame to `until` (timestamp, pose) or else to the last one.
-    /// Spanning two intervals: one interval's estimate feeds back (a pose
-    /// error this frame is a velocity error with the opposite sign next
-    /// frame) and can oscillate. None without a rolling shutter, when lost,
-    /// or across a gap (dropped frames, a restart: the motion is stale).
+    /// correction uses, and the seconds it spans. Before the frame is
+    /// tracked (`until` None): from the oldest remembered tracked frame to
+    /// the last one (two intervals: the first pass only has to bring the
+    /// keypoints within the matching radius). Once it is tracked (`until`:
+    /// its timestamp and pose), the prior of the joint estimate: from the
+    /// last tracked frame to it. The interval that ends at the frame is the
+    /// motion nearest its readout; two intervals back it was centred one
+    /// interval earlier, and where frames were left out (real time on a busy
+    /// machine) that is 67-100 ms behind a turn that reverses within a few
+    /// hundred. Measured (docs/measurements.md, "Rolling-shutter prior over
+    /// the last interval"): `just bench-dropped` median 0.0144 -> 0.0128 m,
+    /// every frame 0.0103 -> 0.0107 m; real time at 60 fps with two busy
+    /// processes 1.38x -> 1.24x lockstep. A monocular frame keeps two
+    /// intervals: it has no joint estimate, the motion itself is its
+    /// correction, and with one interval the rendered orbit closed no loop
+    /// (`tests/loop_circuit.rs`). None without a rolling shutter, when
+    /// lost, or across a gap (a restart: the motion is stale).
     pub(crate) fn shutter_motion(
         &self,
         until: Option<(f64, Isometry3<f64>)>,
@@ -68,7 +79,7 @@ impl Tracking {
             return None;
         }
         let (t0, first) = match until {
-            // Two intervals back from the current frame.
+            Some(_) if !self.params.is_monocular() => *self.recent.last()?,
             Some(_) => *self.recent.get(self.recent.len().checked_sub(2)?)?,
             None => *self.recent.first()?,
         };
@@ -82,14 +93,15 @@ impl Tracking {
     /// Second pass of the rolling-shutter correction once the frame's
     /// matches are known. With depth, the pose and the camera's motion
     /// during the readout are optimised together on the raw (uncorrected)
-    /// keypoints, each seen from its own row's pose, with the motion from two
-    /// frames back to this one as the prior, and the keypoints are corrected
-    /// again with the motion found. A monocular frame keeps that prior's
-    /// motion: corrected with it, the pose is optimised rigidly (without
-    /// depth one frame hardly says how the camera moved along its axis; the
-    /// joint estimate took the rendered room's monocular ATE from 0.0072 to
-    /// 0.0097 m). None when it does not apply (no motion model: the frame
-    /// before was lost) or the optimisation fails.
+    /// keypoints, each seen from its own row's pose, with the motion from the
+    /// last tracked frame to this one as the prior, and the keypoints are
+    /// corrected again with the motion found. A monocular frame keeps the
+    /// motion from two frames back to this one: corrected with it, the pose
+    /// is optimised rigidly (without depth one frame hardly says how the
+    /// camera moved along its axis; the joint estimate took the rendered
+    /// room's monocular ATE from 0.0072 to 0.0097 m). None when it does not
+    /// apply (no motion model: the frame before was lost) or the
+    /// optimisation fails.
     pub(crate) fn refine_for_shutter(
         &self,
         map: &Map,

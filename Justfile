@@ -144,6 +144,11 @@ bench-dropped dataset=tum *args="": build
 bench-realtime *args="": build setup
     ./target/release/realtime-bench {{args}}
 
+# The same with people in front of the camera (synth-people: walking across, and in mixed behaviours), 3 runs a condition unless --runs says otherwise (writes bench-results/realtime_people_*.json).
+bench-realtime-people *args="": build setup synth-people
+    ./target/release/realtime-bench "{{people_front}}" --out bench-results/realtime_people_across.json {{args}}
+    ./target/release/realtime-bench "{{people_mixed_front}}" --out bench-results/realtime_people_mixed.json {{args}}
+
 # Real-time soak of MINUTES on the shared sequence played over and over (a separate `dynslam run`): RSS per process and the map's size per minute; fails when a non-SLAM process grows > 10 MB after minute 1 (writes bench-results/soak.json).
 soak minutes="10" *args="": build setup
     ./target/release/soak --minutes {{minutes}} {{args}}

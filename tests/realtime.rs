@@ -74,7 +74,7 @@ fn a_segmenter_slower_than_five_frame_periods_does_not_starve_tracking() {
     // It started at the supervisor's priority (the first masks are what
     // every stage waits for) and took its niceness once the SLAM tracked.
     assert!(
-        log.contains("segmenter now runs at niceness 10"),
+        log.contains("segmenter now runs at niceness 5"),
         "no niceness applied\n{log}"
     );
     assert_no_shm_left(&run.run_id);

@@ -412,7 +412,7 @@ impl Default for ServicesConfig {
                 weak_score_threshold: Some(0.05),
                 iou_threshold: Some(0.7),
                 threads: Some(2),
-                nice: Some(10),
+                nice: Some(5),
                 ..ServiceConfig::default()
             },
             propagator: ServiceConfig {

@@ -52,6 +52,11 @@ pub trait MaskModel {
     /// no longer held when the masks come.
     fn keep(&mut self, _frame: &FrameView) {}
 
+    /// The segmenter works on frame `seq` while this worker propagates to
+    /// it (real time, `SegmentBehind`): keep what prompting on it will need
+    /// until its masks come, however late (the propagator's).
+    fn await_prompt(&mut self, _seq: u64) {}
+
     /// Whether the frame just inferred asks for a segmenter run now (the
     /// propagator saw something it does not follow); asked once per frame.
     fn wants_segment(&mut self) -> bool {
@@ -161,6 +166,9 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
                 if let Some(frame) = held_frame(&held, r.seq) {
                     model.keep(&frame);
                 }
+            }
+            if role == MaskSource::Propagator && kind == Some(RouteKind::SegmentBehind) {
+                model.await_prompt(r.seq);
             }
             if kind.is_some_and(mine) {
                 pending.retain(|p| p.seq != r.seq);

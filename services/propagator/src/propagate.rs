@@ -184,6 +184,21 @@ struct Object {
 /// 640x480) is a second at 30 fps, more than a loaded segmenter takes.
 const RECENT_FRAMES: usize = 30;
 
+/// Frames the segmenter works on whose pyramids are kept, whatever their
+/// age, until their prompt comes. On a loaded machine the niced segmenter
+/// answers 30-40 frames after its frame (30 fps with two busy processes),
+/// past [`RECENT_FRAMES`]: 6-7 of its 9-10 results in a run were ignored
+/// ("image gone") and the people were never masked (synthesised people in
+/// front, real time, ATE 0.085 m against 0.012 m in lockstep). It works on
+/// one frame at a time; a frame it never answers (replaced before its turn)
+/// leaves when newer ones come or a newer frame's prompt does.
+const AWAITED_FRAMES: usize = 4;
+
+/// Most LK steps a late prompt takes to catch up with the newest frame
+/// ([`LkPropagator::catch_up`]): each costs about as much as propagating a
+/// frame, and they come at once.
+const CATCH_UP_STEPS: usize = 8;
+
 /// The `lk` propagation backend.
 pub struct LkPropagator {
     params: PropagatorParams,
@@ -193,6 +208,9 @@ pub struct LkPropagator {
     height: usize,
     /// The pyramids of the last frames propagated to, by sequence number.
     recent: VecDeque<(u64, Arc<Pyramid>)>,
+    /// Frames the segmenter works on ([`Self::await_prompt`]), with their
+    /// pyramids once propagated to.
+    awaited: VecDeque<(u64, Option<Arc<Pyramid>>)>,
     /// Prompts taken from the worker's held frame.
     prompts_held: u64,
     /// Prompts that arrived after newer frames had been propagated.
@@ -219,6 +237,7 @@ impl LkPropagator {
             width: 0,
             height: 0,
             recent: VecDeque::new(),
+            awaited: VecDeque::new(),
             prompts_held: 0,
             prompts_behind: 0,
             prompts_lost: 0,
@@ -274,7 +293,32 @@ impl LkPropagator {
         }
     }
 
+    /// The segmenter works on frame `seq`: its pyramid (once propagated to
+    /// or kept) stays until the prompt on it comes ([`AWAITED_FRAMES`]).
+    pub fn await_prompt(&mut self, seq: u64) {
+        if self.awaited.iter().any(|(s, _)| *s == seq) {
+            return;
+        }
+        let pyramid = self.kept(seq);
+        self.awaited.push_back((seq, pyramid));
+        while self.awaited.len() > AWAITED_FRAMES {
+            self.awaited.pop_front();
+        }
+    }
+
+    /// Frame `seq`'s kept pyramid, if any.
+    fn kept(&self, seq: u64) -> Option<Arc<Pyramid>> {
+        let recent = self.recent.iter().find(|(s, _)| *s == seq);
+        let awaited = self.awaited.iter().find(|(s, _)| *s == seq);
+        recent
+            .map(|(_, p)| p.clone())
+            .or_else(|| awaited.and_then(|(_, p)| p.clone()))
+    }
+
     fn store(&mut self, seq: u64, pyramid: Arc<Pyramid>) {
+        if let Some((_, slot)) = self.awaited.iter_mut().find(|(s, _)| *s == seq) {
+            *slot = Some(pyramid.clone());
+        }
         self.recent.retain(|(s, _)| *s != seq);
         self.recent.push_back((seq, pyramid));
         while self.recent.len() > RECENT_FRAMES {
@@ -286,16 +330,70 @@ impl LkPropagator {
     /// pyramid is still kept: the objects are followed from that image to
     /// the next frame. False when it is not.
     pub fn prompt_behind(&mut self, seq: u64, labels: &[u8], instances: &[Instance]) -> bool {
-        let Some(pyramid) = self
-            .recent
-            .iter()
-            .find(|(s, _)| *s == seq)
-            .map(|(_, p)| p.clone())
-        else {
+        let pyramid = self.kept(seq);
+        // Older frames' prompts will not come after this one's (the
+        // segmenter answers in order), or are not worth following.
+        self.awaited.retain(|(s, _)| *s > seq);
+        let Some(pyramid) = pyramid else {
             return false;
         };
         self.start_from(pyramid, labels, instances);
+        self.catch_up(seq);
         true
+    }
+
+    /// Follows the objects from the prompted frame `seq` through the kept
+    /// frames propagated to since, up to the newest: a late prompt (real
+    /// time) is several frames behind, and one LK step over all of them
+    /// lost every object (the synthesised people in front at 60 fps: no
+    /// propagated frame of 252 had a mask; forward-backward agreement for
+    /// 0-17 of 120 points) where steps of a frame or two keep them. At most
+    /// [`CATCH_UP_STEPS`] steps (a stride over the kept frames beyond
+    /// that), without depth (not kept).
+    fn catch_up(&mut self, seq: u64) {
+        let later: Vec<Arc<Pyramid>> = self
+            .recent
+            .iter()
+            .filter(|(s, _)| *s > seq)
+            .map(|(_, p)| p.clone())
+            .collect();
+        let (Some(start), Some(newest)) = (self.prev.clone(), later.last().cloned()) else {
+            return;
+        };
+        let stride = later.len().div_ceil(CATCH_UP_STEPS).max(1);
+        // Every stride-th frame counted back from the newest, which is
+        // where the next frame is followed from.
+        let steps: Vec<&Arc<Pyramid>> = later.iter().rev().step_by(stride).rev().collect();
+        let (width, height, params) = (self.width, self.height, self.params);
+        let objects = std::mem::take(&mut self.objects);
+        self.objects = objects
+            .into_iter()
+            .filter_map(|mut obj| {
+                // Points chained through the steps; the mask warped once,
+                // from the prompted frame to the newest.
+                let first = object_points(&obj.mask, width, height, &params)?;
+                let (mut src, mut at) = (first.clone(), first);
+                let mut motion = (0.0, 0.0);
+                let mut from = &start;
+                for &cur in &steps {
+                    let (kept, now) = track_points(from, cur, &at, motion, &params)?;
+                    motion = mean_motion(&at, &kept, &now);
+                    // The starting positions of the points that survived.
+                    src = kept.iter().map(|&i| src[i]).collect();
+                    at = now;
+                    from = cur;
+                }
+                let (mask, moved) = warp_mask(
+                    &start, &newest, None, &obj.mask, &src, &at, width, height, &params,
+                )?;
+                obj.mask = mask;
+                // Per frame: the next frame is one after the newest.
+                let frames = later.len() as f32;
+                obj.motion = (moved.0 / frames, moved.1 / frames);
+                Some(obj)
+            })
+            .collect();
+        self.prev = Some(newest);
     }
 
     /// Objects of `labels` follow from the image of `pyramid` on.
@@ -537,37 +635,92 @@ fn follow(
     height: usize,
     p: &PropagatorParams,
 ) -> Option<(Vec<bool>, (f32, f32))> {
+    let pts = object_points(mask, width, height, p)?;
+    let (kept, dst) = track_points(prev, cur, &pts, motion, p)?;
+    let src: Vec<(f32, f32)> = kept.iter().map(|&i| pts[i]).collect();
+    warp_mask(prev, cur, depth, mask, &src, &dst, width, height, p)
+}
+
+/// Points to follow an object by (a grid inside its mask and its border;
+/// [`sample_points`]); None when fewer than 6.
+fn object_points(
+    mask: &[bool],
+    width: usize,
+    height: usize,
+    p: &PropagatorParams,
+) -> Option<Vec<(f32, f32)>> {
     let mut pts = sample_points(mask, width, height, p.grid_step, p.lk.radius);
     if pts.len() < 6 {
         // A thin or small object: its window overlaps the background anyway.
         pts = sample_points(mask, width, height, p.grid_step, 0);
     }
-    if pts.len() < 6 {
-        return None;
-    }
-    let fwd = track(prev, cur, &pts, motion, p.lk);
+    (pts.len() >= 6).then_some(pts)
+}
+
+/// The points of `pts` that LK tracks from `prev` to `cur` and back to
+/// where they started (forward-backward check), as (their indices in `pts`,
+/// where they are now); None when too few of them (`min_tracked_fraction`,
+/// 6).
+fn track_points(
+    prev: &Pyramid,
+    cur: &Pyramid,
+    pts: &[(f32, f32)],
+    motion: (f32, f32),
+    p: &PropagatorParams,
+) -> Option<Tracked> {
+    let fwd = track(prev, cur, pts, motion, p.lk);
     let ok: Vec<usize> = (0..pts.len()).filter(|&i| fwd[i].is_some()).collect();
     let there: Vec<(f32, f32)> = ok.iter().map(|&i| fwd[i].unwrap()).collect();
     let back = track(cur, prev, &there, (-motion.0, -motion.1), p.lk);
-    let (mut src, mut dst) = (Vec::new(), Vec::new());
+    let (mut kept, mut dst) = (Vec::new(), Vec::new());
     for (k, &i) in ok.iter().enumerate() {
         if let Some(b) = back[k] {
             if (b.0 - pts[i].0).powi(2) + (b.1 - pts[i].1).powi(2) <= p.max_forward_backward.powi(2)
             {
-                src.push(pts[i]);
+                kept.push(i);
                 dst.push(there[k]);
             }
         }
     }
-    if (src.len() as f32) < p.min_tracked_fraction * pts.len() as f32 || src.len() < 6 {
+    if (kept.len() as f32) < p.min_tracked_fraction * pts.len() as f32 || kept.len() < 6 {
         return None;
     }
-    let (affine, inliers) = robust_affine(&src, &dst, p.inlier_px)?;
+    Some((kept, dst))
+}
+
+/// Indices of the points that were tracked, and where they are now.
+type Tracked = (Vec<usize>, Vec<(f32, f32)>);
+
+/// The mean displacement of the points `kept` of `from` to `to`.
+fn mean_motion(from: &[(f32, f32)], kept: &[usize], to: &[(f32, f32)]) -> (f32, f32) {
+    let n = kept.len().max(1) as f32;
+    kept.iter().zip(to).fold((0.0, 0.0), |acc, (&i, b)| {
+        (acc.0 + (b.0 - from[i].0) / n, acc.1 + (b.1 - from[i].1) / n)
+    })
+}
+
+/// The mask in `cur` of the object whose `mask` in `prev` moved its points
+/// from `src` to `dst` (a robust affine plus the inliers' residual motion,
+/// kept where the grey values agree), and its mean image motion; None when
+/// the motion fits no affine or the mask leaves the view.
+#[allow(clippy::too_many_arguments)]
+fn warp_mask(
+    prev: &Pyramid,
+    cur: &Pyramid,
+    depth: Option<(DepthImage, &[bool])>,
+    mask: &[bool],
+    src: &[(f32, f32)],
+    dst: &[(f32, f32)],
+    width: usize,
+    height: usize,
+    p: &PropagatorParams,
+) -> Option<(Vec<bool>, (f32, f32))> {
+    let (affine, inliers) = robust_affine(src, dst, p.inlier_px)?;
     let inv = affine.inverse()?;
     // Residual motion of the inliers at their new positions.
     let residuals: Vec<((f32, f32), (f32, f32))> = src
         .iter()
-        .zip(&dst)
+        .zip(dst)
         .zip(&inliers)
         .filter(|(_, &k)| k)
         .map(|((s, d), _)| {
@@ -714,7 +867,7 @@ fn follow(
     let n = inliers.iter().filter(|&&k| k).count().max(1) as f32;
     let moved = src
         .iter()
-        .zip(&dst)
+        .zip(dst)
         .zip(&inliers)
         .filter(|(_, &k)| k)
         .fold((0.0, 0.0), |acc, ((s, d), _)| {
@@ -872,6 +1025,10 @@ impl MaskModel for LkPropagator {
 
     fn keep(&mut self, frame: &FrameView) {
         self.keep_image(frame.header.seq, frame.rgb, frame.width(), frame.height());
+    }
+
+    fn await_prompt(&mut self, seq: u64) {
+        LkPropagator::await_prompt(self, seq);
     }
 
     fn summary(&self) -> Option<String> {

@@ -99,6 +99,50 @@ fn a_late_prompt_is_carried_forward_from_its_own_frame() {
     assert!(iou(&labels, &truth1) >= 0.85);
 }
 
+/// Real time on a loaded machine: the segmenter answers for frame 0 after
+/// 40 more frames were propagated to, past the frames kept for any late
+/// prompt (30). The frame it worked on is kept until its prompt comes, and
+/// the object is carried forward through the kept frames: one LK step over
+/// the 160 pixels it moved lost it (no object at frame 41).
+#[test]
+fn a_prompt_40_frames_late_is_carried_forward_to_the_newest_frame() {
+    let (bg, tex) = (tum("1305031229.528748.png"), tum("1305031234.493831.png"));
+    let centre = |k: usize| (170.0 + 4.0 * k as f32, 200.0 + 1.0 * k as f32);
+    let run = |catch_up: bool| -> (usize, f64) {
+        let mut p = LkPropagator::new(PropagatorParams::default());
+        let mut labels = vec![0u8; W * H];
+        p.await_prompt(0);
+        for k in 0..=40 {
+            let (rgb, _) = render(&bg, &tex, (0.0, 0.0), centre(k), 1.0);
+            labels.fill(0);
+            p.propagate_frame(k as u64, &rgb, None, W, H, &mut labels);
+        }
+        let (_, at0) = render(&bg, &tex, (0.0, 0.0), centre(0), 1.0);
+        let labels0: Vec<u8> = at0.iter().map(|&m| m as u8).collect();
+        if catch_up {
+            assert!(
+                p.prompt_behind(0, &labels0, &[person()]),
+                "frame 0 was kept"
+            );
+        } else {
+            // What one step from frame 0 does: prompted on its image alone.
+            let (rgb0, _) = render(&bg, &tex, (0.0, 0.0), centre(0), 1.0);
+            p.prompt_with(&rgb0, W, H, &labels0, &[person()]);
+        }
+        let (rgb41, truth41) = render(&bg, &tex, (0.0, 0.0), centre(41), 1.0);
+        labels.fill(0);
+        let found = p.propagate_frame(41, &rgb41, None, W, H, &mut labels).len();
+        (found, iou(&labels, &truth41))
+    };
+    let (found, v) = run(true);
+    println!("carried forward: {found} objects, IoU {v:.3}");
+    assert_eq!(found, 1);
+    assert!(v >= 0.8, "IoU at frame 41 after a prompt on frame 0: {v}");
+    let (found, v) = run(false);
+    println!("one step: {found} objects, IoU {v:.3}");
+    assert!(v < 0.5, "one step over 41 frames should not hold: IoU {v}");
+}
+
 #[test]
 fn follows_a_moving_object_over_a_static_background() {
     let (bg, tex) = (tum("1305031229.528748.png"), tum("1305031234.493831.png"));

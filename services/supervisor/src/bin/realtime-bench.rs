@@ -5,7 +5,9 @@
 //!
 //! Per condition it prints the tracked rate (tracked frames per second of
 //! the stream), dropped %, end-to-end p50/p99, the share of tracked frames
-//! that had masks, and the ATE next to the lockstep ATE; every run's
+//! that had masks ("masked") and of those whose masks removed features
+//! ("removing": empty masks do not), and the ATE next to the lockstep ATE;
+//! every run's
 //! figures go to `bench-results/realtime.json`.
 //!
 //! `realtime-bench [DATASET] [--runs N] [--load N] [--only 30:0,60:2] [--no-lockstep] [--out FILE]`
@@ -67,6 +69,10 @@ struct RunFigures {
     dropped_pct: f64,
     /// Share of tracked frames that had masks (segmenter or propagator).
     masked_share: f64,
+    /// Share of tracked frames whose masks removed at least one feature:
+    /// masks that were there but empty (a propagator that lost every
+    /// object) count in `masked_share`, not here.
+    masks_removed_features_share: f64,
     end_to_end_p50_ms: Option<f64>,
     end_to_end_p99_ms: Option<f64>,
     ate_rmse_m: Option<f64>,
@@ -152,7 +158,7 @@ fn main() -> Result<()> {
         args.runs
     );
     println!(
-        "{:>6} {:>5} {:>18} {:>9} {:>10} {:>10} {:>8} {:>22}",
+        "{:>6} {:>5} {:>18} {:>9} {:>10} {:>10} {:>8} {:>9} {:>22}",
         "fps in",
         "busy",
         "tracked fps",
@@ -160,6 +166,7 @@ fn main() -> Result<()> {
         "e2e p50",
         "e2e p99",
         "masked",
+        "removing",
         "ATE (lockstep)"
     );
     for &(fps_in, load) in &conditions {
@@ -178,7 +185,7 @@ fn main() -> Result<()> {
             .map(|r| r.tracked_fps)
             .fold(f64::INFINITY, f64::min);
         println!(
-            "{:>6} {:>5} {:>10.1} ({:>5.1}) {:>8.1}% {:>10} {:>10} {:>7.0}% {:>10} ({})",
+            "{:>6} {:>5} {:>10.1} ({:>5.1}) {:>8.1}% {:>10} {:>10} {:>7.0}% {:>8.0}% {:>10} ({})",
             fps,
             load,
             med(&|r| Some(r.tracked_fps)).unwrap_or(0.0),
@@ -187,6 +194,7 @@ fn main() -> Result<()> {
             fmt_ms(med(&|r| r.end_to_end_p50_ms)),
             fmt_ms(med(&|r| r.end_to_end_p99_ms)),
             100.0 * med(&|r| Some(r.masked_share)).unwrap_or(0.0),
+            100.0 * med(&|r| Some(r.masks_removed_features_share)).unwrap_or(0.0),
             fmt_m(med(&|r| r.ate_rmse_m)),
             fmt_m(lockstep_ate)
         );
@@ -250,6 +258,7 @@ fn figures(rows: &[FrameRow], speed: f64, run_dir: PathBuf) -> RunFigures {
     let seconds = ((last - first) / speed).max(1e-9);
     let dropped = rows.iter().filter(|r| r.state == "dropped").count();
     let masked = tracked.iter().filter(|r| r.mask_source != "none").count();
+    let removing = tracked.iter().filter(|r| r.features_masked > 0).count();
     RunFigures {
         fps_in: 0.0,
         busy_processes: 0,
@@ -258,6 +267,7 @@ fn figures(rows: &[FrameRow], speed: f64, run_dir: PathBuf) -> RunFigures {
         tracked_fps: tracked.len() as f64 / seconds,
         dropped_pct: 100.0 * dropped as f64 / rows.len().max(1) as f64,
         masked_share: masked as f64 / tracked.len().max(1) as f64,
+        masks_removed_features_share: removing as f64 / tracked.len().max(1) as f64,
         end_to_end_p50_ms: None,
         end_to_end_p99_ms: None,
         ate_rmse_m: None,

@@ -107,6 +107,9 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
     // The segmenter's newest masks (held in place, not copied).
     let mut recent: VecDeque<MasksSample> = VecDeque::new();
     let mut pending: VecDeque<Route> = VecDeque::new();
+    // Propagator: frames the segmenter works on whose routes came before
+    // them; kept when they arrive.
+    let mut keep_on_arrival: VecDeque<u64> = VecDeque::new();
     // Routed frames already replaced by newer ones (real time): counted and
     // said once at the end instead of a warning per frame.
     let mut not_held = 0u64;
@@ -125,6 +128,32 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
             }
             return Ok(());
         }
+        for r in routes.drain()? {
+            tracing::debug!(seq = r.seq, kind = r.kind, held = held.len(), "route");
+            let kind = RouteKind::from_u32(r.kind);
+            if role == MaskSource::Propagator && kind.is_some_and(|k| k.segments()) {
+                if kind == Some(RouteKind::SegmentBehind) {
+                    model.await_prompt(r.seq);
+                }
+                // Kept as soon as the frame is here: in real time newer
+                // frames may replace it before this worker's turn, and its
+                // prompt then found no image (under load 6-9 of 24 prompts
+                // a run, 30 fps with 2 busy processes).
+                match held_frame(&held, r.seq) {
+                    Some(frame) => model.keep(&frame),
+                    None => {
+                        keep_on_arrival.push_back(r.seq);
+                        if keep_on_arrival.len() > HELD_FRAMES {
+                            keep_on_arrival.pop_front();
+                        }
+                    }
+                }
+            }
+            if kind.is_some_and(mine) {
+                pending.retain(|p| p.seq != r.seq);
+                pending.push_back(r);
+            }
+        }
         frames.clear_wakeups();
         while let Some(sample) = frames.next_sample()? {
             let h = sample.user_header();
@@ -132,6 +161,12 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
                 continue;
             }
             held.retain(|s| s.user_header().seq != h.seq);
+            if let Some(i) = keep_on_arrival.iter().position(|&s| s == h.seq) {
+                keep_on_arrival.remove(i);
+                if let Ok(frame) = FrameView::new(h, sample.payload()) {
+                    model.keep(&frame);
+                }
+            }
             held.push_back(sample);
             while held.len() > HELD_FRAMES {
                 held.pop_front();
@@ -157,22 +192,6 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
                         recent.pop_front();
                     }
                 }
-            }
-        }
-        for r in routes.drain()? {
-            tracing::debug!(seq = r.seq, kind = r.kind, held = held.len(), "route");
-            let kind = RouteKind::from_u32(r.kind);
-            if role == MaskSource::Propagator && kind == Some(RouteKind::Segment) {
-                if let Some(frame) = held_frame(&held, r.seq) {
-                    model.keep(&frame);
-                }
-            }
-            if role == MaskSource::Propagator && kind == Some(RouteKind::SegmentBehind) {
-                model.await_prompt(r.seq);
-            }
-            if kind.is_some_and(mine) {
-                pending.retain(|p| p.seq != r.seq);
-                pending.push_back(r);
             }
         }
         if realtime && pending.len() > 1 {

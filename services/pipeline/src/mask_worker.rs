@@ -48,14 +48,9 @@ pub trait MaskModel {
     fn prompt(&mut self, _frame: Option<&FrameView>, _masks: &MasksView) {}
 
     /// A frame the segmenter is making masks for (the propagator's future
-    /// prompt): keep what prompting on it will need, in case the frame is
-    /// no longer held when the masks come.
+    /// prompt): keep what prompting on it will need until the masks come,
+    /// however late (the frame may no longer be held then).
     fn keep(&mut self, _frame: &FrameView) {}
-
-    /// The segmenter works on frame `seq` while this worker propagates to
-    /// it (real time, `SegmentBehind`): keep what prompting on it will need
-    /// until its masks come, however late (the propagator's).
-    fn await_prompt(&mut self, _seq: u64) {}
 
     /// Whether the frame just inferred asks for a segmenter run now (the
     /// propagator saw something it does not follow); asked once per frame.
@@ -132,9 +127,6 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
             tracing::debug!(seq = r.seq, kind = r.kind, held = held.len(), "route");
             let kind = RouteKind::from_u32(r.kind);
             if role == MaskSource::Propagator && kind.is_some_and(|k| k.segments()) {
-                if kind == Some(RouteKind::SegmentBehind) {
-                    model.await_prompt(r.seq);
-                }
                 // Kept as soon as the frame is here: in real time newer
                 // frames may replace it before this worker's turn, and its
                 // prompt then found no image (under load 6-9 of 24 prompts

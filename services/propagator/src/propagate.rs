@@ -184,8 +184,9 @@ struct Object {
 /// 640x480) is a second at 30 fps, more than a loaded segmenter takes.
 const RECENT_FRAMES: usize = 30;
 
-/// Frames the segmenter works on whose pyramids are kept, whatever their
-/// age, until their prompt comes. On a loaded machine the niced segmenter
+/// Frames the segmenter works on whose pyramids are kept
+/// ([`LkPropagator::keep_image`]), whatever their age, until their prompt
+/// comes. On a loaded machine the niced segmenter
 /// answers 30-40 frames after its frame (30 fps with two busy processes),
 /// past [`RECENT_FRAMES`]: 6-7 of its 9-10 results in a run were ignored
 /// ("image gone") and the people were never masked (synthesised people in
@@ -208,9 +209,9 @@ pub struct LkPropagator {
     height: usize,
     /// The pyramids of the last frames propagated to, by sequence number.
     recent: VecDeque<(u64, Arc<Pyramid>)>,
-    /// Frames the segmenter works on ([`Self::await_prompt`]), with their
-    /// pyramids once propagated to.
-    awaited: VecDeque<(u64, Option<Arc<Pyramid>>)>,
+    /// The pyramids of the frames the segmenter works on
+    /// ([`Self::keep_image`]), until their prompts come.
+    awaited: VecDeque<(u64, Arc<Pyramid>)>,
     /// Prompts taken from the worker's held frame.
     prompts_held: u64,
     /// Prompts that arrived after newer frames had been propagated.
@@ -277,13 +278,18 @@ impl LkPropagator {
     }
 
     /// Keeps frame `seq`'s image (one the segmenter is working on) for its
-    /// prompt ([`Self::prompt_behind`]).
+    /// prompt ([`Self::prompt_behind`]), however late it comes
+    /// ([`AWAITED_FRAMES`]).
     pub fn keep_image(&mut self, seq: u64, rgb: &[u8], width: usize, height: usize) {
         let pyramid = Pyramid::new(
             Gray::from_rgb(rgb, width, height),
             self.params.pyramid_levels,
         );
-        self.store(seq, Arc::new(pyramid));
+        self.awaited.retain(|(s, _)| *s != seq);
+        self.awaited.push_back((seq, Arc::new(pyramid)));
+        while self.awaited.len() > AWAITED_FRAMES {
+            self.awaited.pop_front();
+        }
     }
 
     /// Keeps the pyramid of the frame just propagated to as frame `seq`'s.
@@ -293,32 +299,16 @@ impl LkPropagator {
         }
     }
 
-    /// The segmenter works on frame `seq`: its pyramid (once propagated to
-    /// or kept) stays until the prompt on it comes ([`AWAITED_FRAMES`]).
-    pub fn await_prompt(&mut self, seq: u64) {
-        if self.awaited.iter().any(|(s, _)| *s == seq) {
-            return;
-        }
-        let pyramid = self.kept(seq);
-        self.awaited.push_back((seq, pyramid));
-        while self.awaited.len() > AWAITED_FRAMES {
-            self.awaited.pop_front();
-        }
-    }
-
     /// Frame `seq`'s kept pyramid, if any.
     fn kept(&self, seq: u64) -> Option<Arc<Pyramid>> {
-        let recent = self.recent.iter().find(|(s, _)| *s == seq);
-        let awaited = self.awaited.iter().find(|(s, _)| *s == seq);
-        recent
+        self.recent
+            .iter()
+            .chain(&self.awaited)
+            .find(|(s, _)| *s == seq)
             .map(|(_, p)| p.clone())
-            .or_else(|| awaited.and_then(|(_, p)| p.clone()))
     }
 
     fn store(&mut self, seq: u64, pyramid: Arc<Pyramid>) {
-        if let Some((_, slot)) = self.awaited.iter_mut().find(|(s, _)| *s == seq) {
-            *slot = Some(pyramid.clone());
-        }
         self.recent.retain(|(s, _)| *s != seq);
         self.recent.push_back((seq, pyramid));
         while self.recent.len() > RECENT_FRAMES {
@@ -1025,10 +1015,6 @@ impl MaskModel for LkPropagator {
 
     fn keep(&mut self, frame: &FrameView) {
         self.keep_image(frame.header.seq, frame.rgb, frame.width(), frame.height());
-    }
-
-    fn await_prompt(&mut self, seq: u64) {
-        LkPropagator::await_prompt(self, seq);
     }
 
     fn summary(&self) -> Option<String> {

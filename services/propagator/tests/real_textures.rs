@@ -111,7 +111,8 @@ fn a_prompt_40_frames_late_is_carried_forward_to_the_newest_frame() {
     let run = |catch_up: bool| -> (usize, f64) {
         let mut p = LkPropagator::new(PropagatorParams::default());
         let mut labels = vec![0u8; W * H];
-        p.await_prompt(0);
+        let (rgb0, _) = render(&bg, &tex, (0.0, 0.0), centre(0), 1.0);
+        p.keep_image(0, &rgb0, W, H); // routed to the segmenter: kept
         for k in 0..=40 {
             let (rgb, _) = render(&bg, &tex, (0.0, 0.0), centre(k), 1.0);
             labels.fill(0);

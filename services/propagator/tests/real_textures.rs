@@ -144,6 +144,45 @@ fn a_prompt_40_frames_late_is_carried_forward_to_the_newest_frame() {
     assert!(v < 0.5, "one step over 41 frames should not hold: IoU {v}");
 }
 
+/// A late prompt while the camera turns fast: every frame kept since the
+/// prompted one moved the whole image 90 px (fr1_rpy at 60 fps, the
+/// propagator taking every second frame, moved it 40-100 px; LK from no
+/// motion reaches about 60 px at 4 levels). Each catch-up step starts from
+/// the image's own shift, so the object is kept to the newest frame (from
+/// no motion, as before: lost).
+#[test]
+fn a_late_prompt_is_carried_through_a_fast_camera_turn() {
+    let (bg, tex) = (tum("1305031229.528748.png"), tum("1305031234.493831.png"));
+    // The camera turns: the background and the object move left 90 px a
+    // frame; the object walks right 4 px a frame on its own.
+    let frame = |k: usize| {
+        let turn = -90.0 * k as f32;
+        render(
+            &bg,
+            &tex,
+            (turn, 0.0),
+            (560.0 + turn + 4.0 * k as f32, 240.0),
+            1.0,
+        )
+    };
+    let mut p = LkPropagator::new(PropagatorParams::default());
+    let mut labels = vec![0u8; W * H];
+    p.keep_image(0, &frame(0).0, W, H);
+    for k in 1..=4 {
+        labels.fill(0);
+        p.propagate_frame(k as u64, &frame(k).0, None, W, H, &mut labels);
+    }
+    let labels0: Vec<u8> = frame(0).1.iter().map(|&m| m as u8).collect();
+    assert!(p.prompt_behind(0, &labels0, &[person()]));
+    let (rgb5, truth5) = frame(5);
+    labels.fill(0);
+    let found = p.propagate_frame(5, &rgb5, None, W, H, &mut labels).len();
+    let v = iou(&labels, &truth5);
+    println!("after a 450 px turn: {found} objects, IoU {v:.3}");
+    assert_eq!(found, 1, "the object was lost on the way");
+    assert!(v >= 0.8, "IoU at frame 5 after a prompt on frame 0: {v}");
+}
+
 #[test]
 fn follows_a_moving_object_over_a_static_background() {
     let (bg, tex) = (tum("1305031229.528748.png"), tum("1305031234.493831.png"));

@@ -1,10 +1,12 @@
 //! The SLAM service's library: the seam between the service and a SLAM
-//! implementation ([`tracker::Tracker`]), the `orb-rgbd` backend over the
+//! implementation ([`tracker::Tracker`]), when a frame may become a keyframe
+//! ([`keyframe_timing`]), the `orb-rgbd` backend over the
 //! SLAM core (the `slam-core` crate, which has no IPC in it), the
 //! `scripted` test double, `loops.csv`, and the conversions between the pipeline's
 //! configuration and wire types and the core's own.
 
 pub mod convert;
+pub mod keyframe_timing;
 pub mod loops_csv;
 pub mod rgbd_tracker;
 pub mod scripted;

@@ -23,6 +23,7 @@ use shared_types::{
     frame_flags, mask_flags, FrameHeader, MaskSource, MasksHeader, Pose, Route, RouteKind,
     ServiceKind, StageStamps, Track, TrackState,
 };
+use slam::keyframe_timing::KeyframeFacts;
 use slam::rgbd_tracker::{MapFiles, RgbdTracker};
 use slam::scripted::ScriptedTracker;
 use slam::tracker::{TrackInput, Tracker};
@@ -127,6 +128,23 @@ struct State {
     pending_keyframe: Option<u64>,
     /// Real time: the newest frame the segmenter answered for.
     last_segmented: Option<u64>,
+    /// Real time: the segmenter's newest answer found no object (and did
+    /// not fail).
+    segmented_empty: bool,
+    /// Real time: the newest frame on which the propagator saw something
+    /// move that it does not follow ([`mask_flags::SEGMENT_WANTED`]).
+    last_moved: Option<u64>,
+}
+
+impl State {
+    /// Nothing dynamic in view as far as the masks tell: the segmenter's
+    /// newest answer was empty and nothing moved since.
+    fn scene_empty(&self) -> bool {
+        self.segmented_empty
+            && self
+                .last_moved
+                .is_none_or(|m| self.last_segmented.is_some_and(|s| m < s))
+    }
 }
 
 /// Real time: frames after which a keyframe stops waiting for its segmenter
@@ -169,6 +187,8 @@ fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
         last: None,
         pending_keyframe: None,
         last_segmented: None,
+        segmented_empty: false,
+        last_moved: None,
     };
     loop {
         if wait(&ws, Duration::from_secs(1))? == Wake::Terminate {
@@ -228,6 +248,13 @@ fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
             }
             let seq = sample.user_header().seq;
             let segmented = from_segmenter(&sample);
+            let header = sample.user_header();
+            if segmented && st.last_segmented.is_none_or(|s| seq > s) {
+                st.segmented_empty = header.num_instances == 0 && !header.has(mask_flags::FAILED);
+            }
+            if header.has(mask_flags::SEGMENT_WANTED) {
+                st.last_moved = st.last_moved.max(Some(seq));
+            }
             if segmented {
                 st.last_segmented = st.last_segmented.max(Some(seq));
                 if let Some(waiting) = st.pending_keyframe.filter(|&k| k <= seq) {
@@ -332,38 +359,30 @@ fn from_segmenter(m: &MasksSample) -> bool {
     m.user_header().source == MaskSource::Segmenter as u32
 }
 
-/// When the frame at `index` may become a keyframe. Lockstep: now (its
-/// route gave it the segmenter's masks when a keyframe was asked for).
-/// Real time: a frame tracked with propagated masks while the segmenter
-/// works on it waits for them; other propagated frames leave the keyframe
-/// to the next segmented one, unless the segmenter has not answered for a
-/// long while or the map is young (then keyframes come from propagated
-/// masks, as they must).
+/// When the frame at `index` may become a keyframe
+/// ([`slam::keyframe_timing`]), from what this service knows of its masks.
 fn keyframe_timing(st: &State, index: usize, realtime: bool) -> KeyframeTiming {
-    if !realtime {
-        return KeyframeTiming::Now;
-    }
     let seq = st.frames[index].sample.user_header().seq;
-    let segmented_masks = st
-        .masks
-        .iter()
-        .any(|m| m.user_header().seq == seq && from_segmenter(m));
-    let route = st
-        .routes
-        .get(&seq)
-        .and_then(|r| RouteKind::from_u32(r.kind));
-    let segmenter_alive = st
-        .last_segmented
-        .is_some_and(|s| seq <= s + SEGMENTER_PATIENCE);
-    let young_map = st
-        .last
-        .is_some_and(|t| (1..=YOUNG_MAP_KEYFRAMES).contains(&t.counts.keyframes));
-    match route {
-        _ if segmented_masks || young_map => KeyframeTiming::Now,
-        Some(RouteKind::SegmentBehind) => KeyframeTiming::AfterBetterMasks,
-        Some(RouteKind::Propagate) if segmenter_alive => KeyframeTiming::NotThisFrame,
-        _ => KeyframeTiming::Now,
-    }
+    let masks = st.masks.iter().map(|m| m.user_header());
+    let own_masks: Vec<&MasksHeader> = masks.filter(|m| m.seq == seq).collect();
+    slam::keyframe_timing::keyframe_timing(KeyframeFacts {
+        realtime,
+        route: st
+            .routes
+            .get(&seq)
+            .and_then(|r| RouteKind::from_u32(r.kind)),
+        segmented: own_masks
+            .iter()
+            .any(|m| m.source == MaskSource::Segmenter as u32),
+        young_map: st
+            .last
+            .is_some_and(|t| (1..=YOUNG_MAP_KEYFRAMES).contains(&t.counts.keyframes)),
+        segmenter_alive: st
+            .last_segmented
+            .is_some_and(|s| seq <= s + SEGMENTER_PATIENCE),
+        scene_empty: st.scene_empty() && own_masks.iter().any(|m| m.num_instances == 0),
+        asked_before: st.last.is_some_and(|t| t.next_needs_keyframe != 0),
+    })
 }
 
 /// The Track of the ready frame at `index`: tracked with its masks, or

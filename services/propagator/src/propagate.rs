@@ -200,6 +200,13 @@ const AWAITED_FRAMES: usize = 4;
 /// frame, and they come at once.
 const CATCH_UP_STEPS: usize = 8;
 
+/// Most points an object is followed by through a catch-up's steps (every
+/// k-th of its grid and border points): LK costs per point, and the steps
+/// come at once (with ~120 points, 25-100 ms a prompt for 1-3 people at 60
+/// fps: no masks were made meanwhile). The mask is warped once at the end,
+/// where an affine and a coarser residual field need no more.
+const CATCH_UP_POINTS: usize = 48;
+
 /// The `lk` propagation backend.
 pub struct LkPropagator {
     params: PropagatorParams,
@@ -374,7 +381,9 @@ impl LkPropagator {
             .filter_map(|mut obj| {
                 // Points chained through the steps; the mask warped once,
                 // from the prompted frame to the newest.
-                let first = object_points(&obj.mask, width, height, &params)?;
+                let all = object_points(&obj.mask, width, height, &params)?;
+                let every = all.len().div_ceil(CATCH_UP_POINTS).max(1);
+                let first: Vec<(f32, f32)> = all.into_iter().step_by(every).collect();
                 let (mut src, mut at) = (first.clone(), first);
                 let mut from = &start;
                 for (&cur, &shift) in steps.iter().zip(&shifts) {

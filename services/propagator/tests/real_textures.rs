@@ -183,6 +183,37 @@ fn a_late_prompt_is_carried_through_a_fast_camera_turn() {
     assert!(v >= 0.8, "IoU at frame 5 after a prompt on frame 0: {v}");
 }
 
+/// Frame to frame through a fast camera turn (90 px a frame, as where the
+/// propagator takes every second or third frame of fr1_rpy at 60 fps): each
+/// frame's LK starts from the image's shift plus the object's own motion.
+/// From the object's last image motion alone it is lost on the first frame.
+#[test]
+fn follows_an_object_frame_to_frame_through_a_fast_camera_turn() {
+    let (bg, tex) = (tum("1305031229.528748.png"), tum("1305031234.493831.png"));
+    let frame = |k: usize| {
+        let turn = -90.0 * k as f32;
+        render(
+            &bg,
+            &tex,
+            (turn, 0.0),
+            (500.0 + turn + 5.0 * k as f32, 240.0),
+            1.0,
+        )
+    };
+    let mut p = LkPropagator::new(PropagatorParams::default());
+    let (rgb0, mask0) = frame(0);
+    prompt(&mut p, &rgb0, &mask0);
+    for k in 1..=4 {
+        let (rgb, truth) = frame(k);
+        let mut labels = vec![0u8; W * H];
+        let found = p.propagate(&rgb, W, H, &mut labels).len();
+        let v = iou(&labels, &truth);
+        println!("frame {k}: {found} objects, IoU {v:.3}");
+        assert_eq!(found, 1, "frame {k}: the object was lost");
+        assert!(v >= 0.8, "frame {k}: IoU {v}");
+    }
+}
+
 #[test]
 fn follows_a_moving_object_over_a_static_background() {
     let (bg, tex) = (tum("1305031229.528748.png"), tum("1305031234.493831.png"));

@@ -144,6 +144,26 @@ fn a_prompt_40_frames_late_is_carried_forward_to_the_newest_frame() {
     assert!(v < 0.5, "one step over 41 frames should not hold: IoU {v}");
 }
 
+/// Frame `k` of a fast camera turn: the background and the object move
+/// left 90 px a frame; the object, first at column `x0`, walks right
+/// `walk` px a frame on its own.
+fn in_a_fast_turn(
+    bg: &image::RgbImage,
+    tex: &image::RgbImage,
+    k: usize,
+    x0: f32,
+    walk: f32,
+) -> (Vec<u8>, Vec<bool>) {
+    let turn = -90.0 * k as f32;
+    render(
+        bg,
+        tex,
+        (turn, 0.0),
+        (x0 + turn + walk * k as f32, 240.0),
+        1.0,
+    )
+}
+
 /// A late prompt while the camera turns fast: every frame kept since the
 /// prompted one moved the whole image 90 px (fr1_rpy at 60 fps, the
 /// propagator taking every second frame, moved it 40-100 px; LK from no
@@ -153,18 +173,7 @@ fn a_prompt_40_frames_late_is_carried_forward_to_the_newest_frame() {
 #[test]
 fn a_late_prompt_is_carried_through_a_fast_camera_turn() {
     let (bg, tex) = (tum("1305031229.528748.png"), tum("1305031234.493831.png"));
-    // The camera turns: the background and the object move left 90 px a
-    // frame; the object walks right 4 px a frame on its own.
-    let frame = |k: usize| {
-        let turn = -90.0 * k as f32;
-        render(
-            &bg,
-            &tex,
-            (turn, 0.0),
-            (560.0 + turn + 4.0 * k as f32, 240.0),
-            1.0,
-        )
-    };
+    let frame = |k| in_a_fast_turn(&bg, &tex, k, 560.0, 4.0);
     let mut p = LkPropagator::new(PropagatorParams::default());
     let mut labels = vec![0u8; W * H];
     p.keep_image(0, &frame(0).0, W, H);
@@ -190,16 +199,7 @@ fn a_late_prompt_is_carried_through_a_fast_camera_turn() {
 #[test]
 fn follows_an_object_frame_to_frame_through_a_fast_camera_turn() {
     let (bg, tex) = (tum("1305031229.528748.png"), tum("1305031234.493831.png"));
-    let frame = |k: usize| {
-        let turn = -90.0 * k as f32;
-        render(
-            &bg,
-            &tex,
-            (turn, 0.0),
-            (500.0 + turn + 5.0 * k as f32, 240.0),
-            1.0,
-        )
-    };
+    let frame = |k| in_a_fast_turn(&bg, &tex, k, 500.0, 5.0);
     let mut p = LkPropagator::new(PropagatorParams::default());
     let (rgb0, mask0) = frame(0);
     prompt(&mut p, &rgb0, &mask0);

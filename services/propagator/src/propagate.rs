@@ -280,21 +280,33 @@ impl LkPropagator {
         height: usize,
         labels: &mut [u8],
     ) -> Vec<Instance> {
-        let instances = self.propagate_rgbd(rgb, depth, width, height, labels);
+        // A frame the segmenter works on had its pyramid built when it was
+        // kept (`keep_image`): not built again.
+        let cur = self
+            .awaited
+            .iter()
+            .find(|(s, p)| *s == seq && p.levels[0].width == width && p.levels[0].height == height)
+            .map(|(_, p)| p.clone())
+            .unwrap_or_else(|| self.pyramid(rgb, width, height));
+        let instances = self.propagate_pyramid(cur, depth, width, height, labels);
         self.remember(seq);
         instances
+    }
+
+    fn pyramid(&self, rgb: &[u8], width: usize, height: usize) -> Arc<Pyramid> {
+        Arc::new(Pyramid::new(
+            Gray::from_rgb(rgb, width, height),
+            self.params.pyramid_levels,
+        ))
     }
 
     /// Keeps frame `seq`'s image (one the segmenter is working on) for its
     /// prompt ([`Self::prompt_behind`]), however late it comes
     /// ([`AWAITED_FRAMES`]).
     pub fn keep_image(&mut self, seq: u64, rgb: &[u8], width: usize, height: usize) {
-        let pyramid = Pyramid::new(
-            Gray::from_rgb(rgb, width, height),
-            self.params.pyramid_levels,
-        );
+        let pyramid = self.pyramid(rgb, width, height);
         self.awaited.retain(|(s, _)| *s != seq);
-        self.awaited.push_back((seq, Arc::new(pyramid)));
+        self.awaited.push_back((seq, pyramid));
         while self.awaited.len() > AWAITED_FRAMES {
             self.awaited.pop_front();
         }
@@ -375,6 +387,11 @@ impl LkPropagator {
             .windows(2)
             .map(|w| w[0].shift_to(w[1]))
             .collect();
+        // The image's shift from the prompted frame to the newest: an
+        // object's motion beyond it is its own.
+        let shifted = shifts
+            .iter()
+            .fold((0.0, 0.0), |a, s| (a.0 + s.0, a.1 + s.1));
         let (width, height, params) = (self.width, self.height, self.params);
         let objects = std::mem::take(&mut self.objects);
         self.objects = objects
@@ -400,9 +417,6 @@ impl LkPropagator {
                 obj.mask = mask;
                 // Per frame: the next frame is one after the newest.
                 let frames = later.len() as f32;
-                let shifted = shifts
-                    .iter()
-                    .fold((0.0, 0.0), |a, s| (a.0 + s.0, a.1 + s.1));
                 obj.own_motion = (
                     (moved.0 - shifted.0) / frames,
                     (moved.1 - shifted.1) / frames,
@@ -447,11 +461,8 @@ impl LkPropagator {
         labels: &[u8],
         instances: &[Instance],
     ) {
-        let pyramid = Pyramid::new(
-            Gray::from_rgb(rgb, width, height),
-            self.params.pyramid_levels,
-        );
-        self.start_from(Arc::new(pyramid), labels, instances);
+        let pyramid = self.pyramid(rgb, width, height);
+        self.start_from(pyramid, labels, instances);
     }
 
     /// Marks the pixels `depth` measured (`pixels` of them) as measurable.
@@ -490,11 +501,20 @@ impl LkPropagator {
         height: usize,
         labels: &mut [u8],
     ) -> Vec<Instance> {
+        let cur = self.pyramid(rgb, width, height);
+        self.propagate_pyramid(cur, depth, width, height, labels)
+    }
+
+    /// [`Self::propagate_rgbd`] to the frame whose pyramid is `cur`.
+    fn propagate_pyramid(
+        &mut self,
+        cur: Arc<Pyramid>,
+        depth: Option<DepthImage>,
+        width: usize,
+        height: usize,
+        labels: &mut [u8],
+    ) -> Vec<Instance> {
         self.newcomer = None;
-        let cur = Pyramid::new(
-            Gray::from_rgb(rgb, width, height),
-            self.params.pyramid_levels,
-        );
         let Some(prev) = self
             .prev
             .take()
@@ -502,7 +522,7 @@ impl LkPropagator {
         else {
             // No prompt yet (or the frame size changed): nothing to follow.
             self.objects.clear();
-            self.prev = Some(Arc::new(cur));
+            self.prev = Some(cur);
             self.width = width;
             self.height = height;
             return Vec::new();
@@ -511,7 +531,7 @@ impl LkPropagator {
             self.note_measured(&d, width * height);
         }
         let params = self.params;
-        let (prev_ref, cur_ref) = (&*prev, &cur);
+        let (prev_ref, cur_ref) = (&*prev, &*cur);
         let measurable = &self.measurable;
         let objects = std::mem::take(&mut self.objects);
         // The newcomer check looks outside what the followed objects cover
@@ -564,7 +584,7 @@ impl LkPropagator {
             .collect();
         self.newcomer = newcomer;
         self.objects = kept;
-        self.prev = Some(Arc::new(cur));
+        self.prev = Some(cur);
         let mut out = Vec::new();
         for (i, obj) in self.objects.iter_mut().enumerate().take(254) {
             let (mut x0, mut y0, mut x1, mut y1) = (width, height, 0, 0);

@@ -91,13 +91,12 @@ impl Pyramid {
 
     /// The image's dominant shift from this image to `to` (level-0 pixels):
     /// the translation with the least mean absolute difference at the
-    /// coarsest level (up to [`SHIFT_SEARCH`] of its pixels each way, 96 at
+    /// coarsest level (up to [`SHIFT_SEARCH`] of its pixels each way, 128 at
     /// 640x480 with 4 levels), refined a pixel each way a level down. A
-    /// starting guess for LK where the frames are far apart (a late prompt's
-    /// catch-up over frames the propagator skipped: the camera turned 40-80
-    /// px between them on fr1_rpy at 60 fps, beyond the pyramid's reach from
-    /// no motion, and forward-backward agreement held for 0-12 of ~100
-    /// points).
+    /// starting guess for LK where the frames are far apart (frames the
+    /// propagator skipped: the camera turned 40-100 px between them on
+    /// fr1_rpy at 60 fps, beyond the pyramid's reach from no motion, and
+    /// forward-backward agreement held for 0-12 of ~100 points).
     pub fn shift_to(&self, to: &Pyramid) -> (f32, f32) {
         let top = self.levels.len().min(to.levels.len()) - 1;
         let (dx, dy) = best_shift(&self.levels[top], &to.levels[top], (0, 0), SHIFT_SEARCH, 3);

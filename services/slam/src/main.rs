@@ -246,17 +246,18 @@ fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
             if sample.user_header().has(mask_flags::GONE) {
                 continue; // that frame will not be tracked (the supervisor drops it)
             }
-            let seq = sample.user_header().seq;
-            let segmented = from_segmenter(&sample);
             let header = sample.user_header();
-            if segmented && st.last_segmented.is_none_or(|s| seq > s) {
-                st.segmented_empty = header.num_instances == 0 && !header.has(mask_flags::FAILED);
-            }
+            let seq = header.seq;
+            let segmented = from_segmenter(&sample);
             if header.has(mask_flags::SEGMENT_WANTED) {
                 st.last_moved = st.last_moved.max(Some(seq));
             }
             if segmented {
-                st.last_segmented = st.last_segmented.max(Some(seq));
+                if st.last_segmented.is_none_or(|s| seq > s) {
+                    st.segmented_empty =
+                        header.num_instances == 0 && !header.has(mask_flags::FAILED);
+                    st.last_segmented = Some(seq);
+                }
                 if let Some(waiting) = st.pending_keyframe.filter(|&k| k <= seq) {
                     // The pending keyframe's own masks (or a newer frame's:
                     // its own will not come) complete it.
@@ -363,24 +364,24 @@ fn from_segmenter(m: &MasksSample) -> bool {
 /// ([`slam::keyframe_timing`]), from what this service knows of its masks.
 fn keyframe_timing(st: &State, index: usize, realtime: bool) -> KeyframeTiming {
     let seq = st.frames[index].sample.user_header().seq;
-    let masks = st.masks.iter().map(|m| m.user_header());
-    let own_masks: Vec<&MasksHeader> = masks.filter(|m| m.seq == seq).collect();
+    // At most one masks sample per frame is held (a frame's segmenter
+    // masks replace its propagated ones).
+    let own_masks = st.masks.iter().find(|m| m.user_header().seq == seq);
     slam::keyframe_timing::keyframe_timing(KeyframeFacts {
         realtime,
         route: st
             .routes
             .get(&seq)
             .and_then(|r| RouteKind::from_u32(r.kind)),
-        segmented: own_masks
-            .iter()
-            .any(|m| m.source == MaskSource::Segmenter as u32),
+        segmented: own_masks.is_some_and(from_segmenter),
         young_map: st
             .last
             .is_some_and(|t| (1..=YOUNG_MAP_KEYFRAMES).contains(&t.counts.keyframes)),
         segmenter_alive: st
             .last_segmented
             .is_some_and(|s| seq <= s + SEGMENTER_PATIENCE),
-        scene_empty: st.scene_empty() && own_masks.iter().any(|m| m.num_instances == 0),
+        scene_empty: st.scene_empty()
+            && own_masks.is_some_and(|m| m.user_header().num_instances == 0),
         asked_before: st.last.is_some_and(|t| t.next_needs_keyframe != 0),
     })
 }

@@ -283,10 +283,8 @@ impl LkPropagator {
         // A frame the segmenter works on had its pyramid built when it was
         // kept (`keep_image`): not built again.
         let cur = self
-            .awaited
-            .iter()
-            .find(|(s, p)| *s == seq && p.levels[0].width == width && p.levels[0].height == height)
-            .map(|(_, p)| p.clone())
+            .kept(seq)
+            .filter(|p| p.levels[0].width == width && p.levels[0].height == height)
             .unwrap_or_else(|| self.pyramid(rgb, width, height));
         let instances = self.propagate_pyramid(cur, depth, width, height, labels);
         self.remember(seq);

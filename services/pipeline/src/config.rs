@@ -320,6 +320,11 @@ pub struct RoutingConfig {
     /// next frame is then routed to the segmenter (at most one request per
     /// 5 frames). Off: newcomers wait for `max_segment_age`.
     pub early_segment_requests: bool,
+    /// With `early_segment_requests`: the propagator also asks once the
+    /// camera has turned by this share of the image width (or height) since
+    /// the segmenter last saw the view, for whoever the turn brought into
+    /// view (they show no motion of their own to ask with). 0: never.
+    pub unseen_view_share: f32,
 }
 
 impl Default for RoutingConfig {
@@ -329,6 +334,7 @@ impl Default for RoutingConfig {
             segment_every_frame: false,
             no_masks: false,
             early_segment_requests: true,
+            unseen_view_share: 0.2,
         }
     }
 }
@@ -683,6 +689,13 @@ impl PipelineConfig {
                 }
             }
         }
+        in_range(
+            "routing.unseen_view_share",
+            self.routing.unseen_view_share as f64,
+            0.0,
+            1.0,
+            "a share of the image (0: off)",
+        )?;
         if !(self.source.image_period.is_finite() && self.source.image_period > 0.0) {
             return Err("key `source.image_period`: must be a positive number of seconds".into());
         }
@@ -1216,6 +1229,10 @@ mod tests {
                 "services.propagator.min_area_ratio",
             ),
             ("[camera]\nfx = 1e300\n", "camera.fx"),
+            (
+                "[routing]\nunseen_view_share = 1.5\n",
+                "routing.unseen_view_share",
+            ),
         ] {
             let err = PipelineConfig::parse(&format!("# a comment\n{text}")).unwrap_err();
             assert!(err.contains(&format!("key `{key}`")), "{text}: {err}");

@@ -6,6 +6,7 @@
 use std::process::ExitCode;
 
 use clap::Parser;
+use pipeline::config::ClockMode;
 use pipeline::mask_worker::{self, model_from_config, ModelFactory};
 use pipeline::runtime::{run_service, ServiceArgs};
 use propagator::newcomers::NewcomerCheck;
@@ -25,8 +26,19 @@ fn main() -> ExitCode {
     run_service(ServiceKind::Propagator, &args.service, |ctx| {
         let lk: &ModelFactory = &|ctx| {
             let mut lk = LkPropagator::new(PropagatorParams::default());
-            if ctx.config.routing.early_segment_requests {
-                lk = lk.with_newcomer_check(NewcomerCheck::for_camera(&ctx.config.camera));
+            let routing = &ctx.config.routing;
+            if routing.early_segment_requests {
+                let realtime = ctx.config.run.mode == ClockMode::Realtime;
+                if realtime && routing.unseen_view_share > 0.0 {
+                    tracing::debug!(
+                        "routing.unseen_view_share applies to lockstep runs: in real time the segmenter would be busy on every frame it can take, at the tracking's expense"
+                    );
+                }
+                lk = lk.with_newcomer_check(NewcomerCheck::for_pipeline(
+                    &ctx.config.camera,
+                    routing,
+                    realtime,
+                ));
             }
             Ok(Box::new(lk))
         };

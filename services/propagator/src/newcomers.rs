@@ -17,13 +17,19 @@
 //! RANSAC driver of the SLAM core. Grid cells whose points move more than
 //! `min_residual_px` unlike that motion are movers; a connected group of at
 //! least `min_cells` of them that moves alike, found in two frames in a row,
-//! is a newcomer. The pixel size of a cell and the group size make
+//! is a newcomer. A newcomer the segmenter then does not find (a person
+//! just in view at the border is a sliver it misses) is asked for once more
+//! a frame later. And the view itself: once the camera has turned by
+//! `unseen_view_share` of the image since the segmenter last saw it, what
+//! has come into view is asked for (a person brought into view by the
+//! camera's turn, walking along with it, shows no motion of their own).
+//! The pixel size of a cell and the group size make
 //! the smallest region that asks (24x24 px cells, 3 of them: 1728 px, under
 //! the 2000 px from which `masks-eval` scores a person). About 4 ms a
 //! 640x480 frame on one core of the 2-core machine (`propagator-bench`).
 
 use nalgebra::{SMatrix, SVector};
-use pipeline::config::CameraConfig;
+use pipeline::config::{CameraConfig, RoutingConfig};
 use slam_core::geometry::ransac::Ransac;
 use slam_core::Camera;
 
@@ -61,6 +67,14 @@ pub struct NewcomerParams {
     /// frame); "near" grows by a cell a frame (it moves on). A region
     /// elsewhere (another person walking in) asks at once.
     pub cooldown_frames: u32,
+    /// A moving region's request whose segmenter run found nothing over
+    /// the region is made again this many frames after the answer, once: by
+    /// then more of them is in view.
+    pub retry_frames: u32,
+    /// A request once the image has shifted by this share of its width (or
+    /// height) since the last segmenter run (the background's median flow,
+    /// summed); 0: never (`routing.unseen_view_share`).
+    pub unseen_view_share: f32,
 }
 
 impl Default for NewcomerParams {
@@ -75,6 +89,8 @@ impl Default for NewcomerParams {
             min_corner_score: 60.0,
             min_coherence: 0.7,
             cooldown_frames: 5,
+            retry_frames: 1,
+            unseen_view_share: RoutingConfig::default().unseen_view_share,
         }
     }
 }
@@ -84,10 +100,23 @@ pub use pipeline::views::DepthImage;
 /// A region that asked for a segmenter run.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Newcomer {
-    /// Mover cells in the group.
+    /// Mover cells in the group (0 for the unseen view).
     pub cells: usize,
     /// Bounding box of the group in the new frame: x0, y0, x1, y1 (pixels).
     pub bbox: [usize; 4],
+    pub why: Why,
+}
+
+/// Why a segmenter run is asked for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Why {
+    /// A group of cells moves unlike the camera.
+    Moving,
+    /// Again: the segmenter found nothing where a moving group asked.
+    Unanswered,
+    /// The camera has turned by `unseen_view_share` since the segmenter
+    /// last saw the view: the band that came into view.
+    UnseenView,
 }
 
 impl Newcomer {
@@ -114,7 +143,16 @@ pub struct NewcomerCheck {
     /// in two frames in a row at about the same place (a flicker of
     /// mistracked points is not).
     last: Vec<Newcomer>,
+    /// Why the last request was made, until the segmenter's objects on a
+    /// frame after it come ([`NewcomerCheck::answered`]).
+    awaiting: Option<Why>,
+    /// Frames to go before the last request, left unanswered, is made again.
+    retry_in: Option<u32>,
+    /// The image's shift since the last segmenter run (pixels).
+    unseen_shift: (f32, f32),
     requests: u64,
+    retries: u64,
+    unseen_views: u64,
 }
 
 /// One background point tracked into the new frame.
@@ -199,21 +237,85 @@ impl NewcomerCheck {
             cooldown: 0,
             asked: None,
             last: Vec::new(),
+            awaiting: None,
+            retry_in: None,
+            unseen_shift: (0.0, 0.0),
             requests: 0,
+            retries: 0,
+            unseen_views: 0,
         }
     }
 
     /// The check with the default parameters for the configured camera
     /// (depth units come with each frame; only the intrinsics and the
-    /// distortion are used).
-    pub fn for_camera(c: &CameraConfig) -> Self {
+    /// distortion are used) and routing. In `realtime` the unseen view asks
+    /// nothing: there a request keeps the segmenter busy on every frame it
+    /// can take, and on the 2-core machine it then takes the CPU the
+    /// propagator and the SLAM need (30 fps unloaded, static shared
+    /// sequence: end-to-end p99 52-64 ms without, 70-98 ms with it, 0.2).
+    pub fn for_pipeline(c: &CameraConfig, routing: &RoutingConfig, realtime: bool) -> Self {
         let camera = Camera::new([c.fx, c.fy, c.cx, c.cy], c.distortion, 1.0, 0.0);
-        Self::new(camera, NewcomerParams::default())
+        let params = NewcomerParams {
+            unseen_view_share: if realtime {
+                0.0
+            } else {
+                routing.unseen_view_share
+            },
+            ..NewcomerParams::default()
+        };
+        Self::new(camera, params)
     }
 
-    /// Requests made so far.
+    /// Requests made so far (all kinds).
     pub fn requests(&self) -> u64 {
         self.requests
+    }
+
+    /// Of [`Self::requests`]: made again because the segmenter found
+    /// nothing where a moving group asked ([`Why::Unanswered`]).
+    pub fn retries(&self) -> u64 {
+        self.retries
+    }
+
+    /// Of [`Self::requests`]: for a view the segmenter has not seen
+    /// ([`Why::UnseenView`]).
+    pub fn unseen_views(&self) -> u64 {
+        self.unseen_views
+    }
+
+    /// The segmenter's objects on a frame (`labels`: non-zero on an object,
+    /// `width` pixels a row): the view is seen again. When the frame comes
+    /// after the last request (`after_request`), a moving group's request
+    /// with no object over its region (grown by a cell: it moved on a
+    /// frame) is made again [`NewcomerParams::retry_frames`] frames later,
+    /// once.
+    pub fn answered(&mut self, labels: &[u8], width: usize, after_request: bool) {
+        self.unseen_shift = (0.0, 0.0);
+        if !after_request {
+            return;
+        }
+        let (Some(Why::Moving), Some(asked)) = (self.awaiting.take(), self.asked) else {
+            return;
+        };
+        if width == 0 {
+            return;
+        }
+        let height = labels.len() / width;
+        let margin = self.params.cell_px;
+        let [x0, y0, x1, y1] = asked.bbox;
+        let (x0, y0) = (
+            x0.saturating_sub(margin).min(width),
+            y0.saturating_sub(margin),
+        );
+        let (x1, y1) = ((x1 + margin).clamp(x0, width), (y1 + margin).min(height));
+        let found = (y0..y1).any(|y| {
+            labels[y * width + x0..y * width + x1]
+                .iter()
+                .any(|&l| l != 0)
+        });
+        if !found {
+            self.retry_in = Some(self.params.retry_frames);
+        }
     }
 
     /// Looks for a newcomer between `prev` and `cur`: `followed` are the
@@ -229,10 +331,23 @@ impl NewcomerCheck {
         lk: LkParams,
     ) -> Option<Newcomer> {
         self.cooldown = self.cooldown.saturating_sub(1);
+        self.retry_in = self.retry_in.map(|n| n.saturating_sub(1));
         let found = self
             .find(prev, cur, followed, depth, lk)
             .unwrap_or_default();
         let before = std::mem::replace(&mut self.last, found);
+        if let Some(band) = self.unseen_band(prev) {
+            return Some(self.request(band));
+        }
+        if self.retry_in == Some(0) {
+            self.retry_in = None;
+            if let Some(asked) = self.asked {
+                return Some(self.request(Newcomer {
+                    why: Why::Unanswered,
+                    ..asked
+                }));
+            }
+        }
         let margin = self.params.cell_px;
         // Any group near any of the last frame's: a large person near the
         // camera breaks into several groups (where their texture is), and
@@ -251,10 +366,56 @@ impl NewcomerCheck {
             .filter(|f| before.iter().any(|b| f.near(b, margin)) && !cooling(f))
             .max_by_key(|f| f.cells)
             .copied()?;
+        Some(self.request(found))
+    }
+
+    /// The band that has come into view since the segmenter last saw the
+    /// view, once the image has shifted by `unseen_view_share` of its size
+    /// (on the side the shift brought in: a shift to the right brings in
+    /// the left edge).
+    fn unseen_band(&mut self, frame: &Pyramid) -> Option<Newcomer> {
+        let share = self.params.unseen_view_share;
+        let base = frame.levels.first()?;
+        let (w, h) = (base.width, base.height);
+        let (sx, sy) = self.unseen_shift;
+        if share <= 0.0 || (sx.abs() <= share * w as f32 && sy.abs() <= share * h as f32) {
+            return None;
+        }
+        self.unseen_shift = (0.0, 0.0);
+        let bbox = if sx.abs() * h as f32 >= sy.abs() * w as f32 {
+            let band = (sx.abs() as usize).min(w);
+            if sx > 0.0 {
+                [0, 0, band, h]
+            } else {
+                [w - band, 0, w, h]
+            }
+        } else {
+            let band = (sy.abs() as usize).min(h);
+            if sy > 0.0 {
+                [0, 0, w, band]
+            } else {
+                [0, h - band, w, h]
+            }
+        };
+        Some(Newcomer {
+            cells: 0,
+            bbox,
+            why: Why::UnseenView,
+        })
+    }
+
+    /// A request for `region` now.
+    fn request(&mut self, region: Newcomer) -> Newcomer {
         self.cooldown = self.params.cooldown_frames;
-        self.asked = Some(found);
+        self.asked = Some(region);
+        self.awaiting = Some(region.why);
         self.requests += 1;
-        Some(found)
+        match region.why {
+            Why::Moving => {}
+            Why::Unanswered => self.retries += 1,
+            Why::UnseenView => self.unseen_views += 1,
+        }
+        region
     }
 
     /// The groups of connected mover cells that move alike between `prev`
@@ -351,6 +512,8 @@ impl NewcomerCheck {
         }
         if let Some(median) = median_flow(&flows, &self.camera) {
             self.flow_guess = median;
+            self.unseen_shift.0 += median.0;
+            self.unseen_shift.1 += median.1;
         }
         // Too little background to say what the camera did.
         if flows.len() < 24 {
@@ -412,6 +575,7 @@ impl NewcomerCheck {
                 Newcomer {
                     cells: group.len(),
                     bbox: [x0, y0, x1, y1],
+                    why: Why::Moving,
                 }
             })
             .collect();
@@ -680,6 +844,116 @@ mod tests {
             .expect("a region away from the one that asked is not cooling down");
         assert!(found.bbox[2] <= 120, "{found:?}");
         assert_eq!(check.requests(), 2);
+    }
+
+    /// Labels (W x H) with an object over x0..x1, y0..y1.
+    fn labels_over(x0: usize, y0: usize, x1: usize, y1: usize) -> Vec<u8> {
+        (0..W * H)
+            .map(|i| {
+                let (x, y) = (i % W, i / W);
+                u8::from((x0..x1).contains(&x) && (y0..y1).contains(&y))
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_request_the_segmenter_finds_nothing_for_is_made_again_once() {
+        let (prev, cur) = pan_with_patch(true);
+        let depth = flat_depth(2.0);
+        let depth = DepthImage {
+            raw: &depth,
+            per_metre: 5000.0,
+        };
+        let lk = LkParams::default();
+        let mut check = NewcomerCheck::new(camera(), NewcomerParams::default());
+        assert!(check.check(&prev, &cur, &[], depth, lk).is_none());
+        let asked = check.check(&prev, &cur, &[], depth, lk).unwrap();
+        assert_eq!(asked.why, Why::Moving);
+        // The segmenter's objects lie elsewhere: asked again a frame later,
+        // for the same region, within the cooldown.
+        check.answered(&labels_over(0, 0, 40, 40), W, true);
+        let again = check
+            .check(&prev, &cur, &[], depth, lk)
+            .expect("the region the segmenter left unanswered asks again");
+        assert_eq!(again.why, Why::Unanswered);
+        assert_eq!(again.bbox, asked.bbox);
+        // A retry is not retried: nothing until the cooldown is over.
+        check.answered(&labels_over(0, 0, 40, 40), W, true);
+        for _ in 1..NewcomerParams::default().cooldown_frames {
+            assert!(check.check(&prev, &cur, &[], depth, lk).is_none());
+        }
+        assert_eq!((check.requests(), check.retries()), (2, 1));
+    }
+
+    #[test]
+    fn a_request_answered_there_or_before_it_is_not_made_again() {
+        let (prev, cur) = pan_with_patch(true);
+        let depth = flat_depth(2.0);
+        let depth = DepthImage {
+            raw: &depth,
+            per_metre: 5000.0,
+        };
+        let lk = LkParams::default();
+        let mut check = NewcomerCheck::new(camera(), NewcomerParams::default());
+        assert!(check.check(&prev, &cur, &[], depth, lk).is_none());
+        assert!(check.check(&prev, &cur, &[], depth, lk).is_some());
+        // An answer on a frame segmented before the request (real time: the
+        // segmenter was busy) says nothing about the region...
+        check.answered(&[0; W * H], W, false);
+        assert!(check.check(&prev, &cur, &[], depth, lk).is_none());
+        // ... and an object over the patch (x 197..261, y 90..154) answers it.
+        check.answered(&labels_over(200, 90, 260, 150), W, true);
+        for _ in 2..NewcomerParams::default().cooldown_frames {
+            assert!(check.check(&prev, &cur, &[], depth, lk).is_none());
+        }
+        assert_eq!((check.requests(), check.retries()), (1, 0));
+    }
+
+    #[test]
+    fn a_turn_past_the_unseen_share_asks_for_the_band_it_brought_in() {
+        // The scene shifts 3 px left a frame: new view comes in at the right.
+        let (prev, cur) = pan_with_patch(false);
+        let depth = flat_depth(2.0);
+        let depth = DepthImage {
+            raw: &depth,
+            per_metre: 5000.0,
+        };
+        let lk = LkParams::default();
+        let params = NewcomerParams {
+            unseen_view_share: 0.05,
+            ..NewcomerParams::default()
+        };
+        let mut check = NewcomerCheck::new(camera(), params);
+        // 16 px of 320 is 0.05: asked on the 6th frame (18 px).
+        for _ in 0..5 {
+            assert!(check.check(&prev, &cur, &[], depth, lk).is_none());
+        }
+        let band = check.check(&prev, &cur, &[], depth, lk).unwrap();
+        assert_eq!(band.why, Why::UnseenView);
+        let [x0, y0, x1, y1] = band.bbox;
+        assert!((15..=21).contains(&(x1 - x0)) && x1 == W, "{band:?}");
+        assert_eq!((y0, y1), (0, H));
+        // A segmenter run sees the view again: the count starts over.
+        for _ in 0..3 {
+            assert!(check.check(&prev, &cur, &[], depth, lk).is_none());
+        }
+        check.answered(&[0; W * H], W, false);
+        for _ in 0..5 {
+            assert!(check.check(&prev, &cur, &[], depth, lk).is_none());
+        }
+        assert!(check.check(&prev, &cur, &[], depth, lk).is_some());
+        // Off at 0.
+        let mut off = NewcomerCheck::new(
+            camera(),
+            NewcomerParams {
+                unseen_view_share: 0.0,
+                ..NewcomerParams::default()
+            },
+        );
+        for _ in 0..40 {
+            assert!(off.check(&prev, &cur, &[], depth, lk).is_none());
+        }
+        assert_eq!((check.unseen_views(), off.requests()), (2, 0));
     }
 
     #[test]

@@ -230,6 +230,9 @@ pub struct LkPropagator {
     newcomers: Option<NewcomerCheck>,
     /// What the last propagated frame asked for, until taken.
     newcomer: Option<Newcomer>,
+    /// The frame whose newcomer check last asked for a segmenter run: only
+    /// a prompt on a later frame answers it.
+    asked_on: Option<u64>,
     /// Pixels where the depth camera measured something in some frame of
     /// this run (empty before the first depth): elsewhere it never does
     /// (the registered depth's border bands: fr1 about 36 rows at the top,
@@ -252,6 +255,7 @@ impl LkPropagator {
             prompts_lost: 0,
             newcomers: None,
             newcomer: None,
+            asked_on: None,
             measurable: Vec::new(),
         }
     }
@@ -287,6 +291,9 @@ impl LkPropagator {
             .filter(|p| p.levels[0].width == width && p.levels[0].height == height)
             .unwrap_or_else(|| self.pyramid(rgb, width, height));
         let instances = self.propagate_pyramid(cur, depth, width, height, labels);
+        if self.newcomer.is_some() {
+            self.asked_on = Some(seq);
+        }
         self.remember(seq);
         instances
     }
@@ -346,6 +353,7 @@ impl LkPropagator {
             return false;
         };
         self.start_from(pyramid, labels, instances);
+        self.answered(labels, self.asked_on.is_none_or(|asked| seq > asked));
         self.catch_up(seq);
         true
     }
@@ -461,6 +469,15 @@ impl LkPropagator {
     ) {
         let pyramid = self.pyramid(rgb, width, height);
         self.start_from(pyramid, labels, instances);
+        self.answered(labels, true);
+    }
+
+    /// The newcomer check learns what the segmenter found
+    /// ([`NewcomerCheck::answered`]).
+    fn answered(&mut self, labels: &[u8], after_request: bool) {
+        if let Some(check) = self.newcomers.as_mut() {
+            check.answered(labels, self.width, after_request);
+        }
     }
 
     /// Marks the pixels `depth` measured (`pixels` of them) as measurable.
@@ -1027,7 +1044,8 @@ impl MaskModel for LkPropagator {
                 seq = frame.header.seq,
                 cells = n.cells,
                 bbox = ?n.bbox,
-                "something moves outside the followed objects: segmenter run wanted"
+                why = ?n.why,
+                "segmenter run wanted (something moves outside the followed objects, again where it found nothing, or a view it has not seen)"
             );
         }
         Ok(instances)
@@ -1067,8 +1085,10 @@ impl MaskModel for LkPropagator {
     fn summary(&self) -> Option<String> {
         let requests = match &self.newcomers {
             Some(check) => format!(
-                "; early segmenter requests (something moving outside the followed objects): {}",
-                check.requests()
+                "; early segmenter requests: {} (something moving outside the followed objects; {} of them again where the segmenter found nothing, {} for a view it had not seen)",
+                check.requests(),
+                check.retries(),
+                check.unseen_views()
             ),
             None => String::new(),
         };

@@ -318,7 +318,11 @@ pub fn evaluate(
     let mut segmenter = YoloSeg::load(init_runtime(&config.onnxruntime)?, settings)?;
     let mut propagator = LkPropagator::new(PropagatorParams::default());
     if config.routing.early_segment_requests {
-        propagator = propagator.with_newcomer_check(NewcomerCheck::for_camera(&config.camera));
+        propagator = propagator.with_newcomer_check(NewcomerCheck::for_pipeline(
+            &config.camera,
+            &config.routing,
+            false,
+        ));
     }
     let mut entries = Entries::default();
     let mut early_segments = 0;

@@ -19,7 +19,7 @@ use anyhow::{Context, Result};
 use camera_reader::decode::decode_depth_into;
 use camera_reader::source::tum_folder;
 use clap::Parser;
-use pipeline::config::{CameraConfig, OnnxRuntimeConfig, ServiceConfig};
+use pipeline::config::{CameraConfig, OnnxRuntimeConfig, RoutingConfig, ServiceConfig};
 use pipeline::stats::percentile;
 use propagator::newcomers::{DepthImage, NewcomerCheck};
 use propagator::propagate::{LkPropagator, PropagatorParams};
@@ -195,7 +195,8 @@ fn time_newcomer_check(
     entries: &[camera_reader::source::FrameEntry],
     frames: usize,
 ) -> Result<(Vec<f64>, u64)> {
-    let mut check = NewcomerCheck::for_camera(&CameraConfig::default());
+    let mut check =
+        NewcomerCheck::for_pipeline(&CameraConfig::default(), &RoutingConfig::default(), false);
     let lk = PropagatorParams::default();
     let mut prev: Option<Pyramid> = None;
     let mut depth = Vec::new();

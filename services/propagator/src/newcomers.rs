@@ -856,19 +856,32 @@ mod tests {
             .collect()
     }
 
-    #[test]
-    fn a_request_the_segmenter_finds_nothing_for_is_made_again_once() {
+    /// The moving patch of [`pan_with_patch`] (depth 2 m everywhere) after
+    /// it asked: the frames, the depth and the check.
+    fn patch_asked_for() -> (Pyramid, Pyramid, Vec<u8>, NewcomerCheck) {
         let (prev, cur) = pan_with_patch(true);
-        let depth = flat_depth(2.0);
+        let raw = flat_depth(2.0);
+        let mut check = NewcomerCheck::new(camera(), NewcomerParams::default());
         let depth = DepthImage {
-            raw: &depth,
+            raw: &raw,
             per_metre: 5000.0,
         };
         let lk = LkParams::default();
-        let mut check = NewcomerCheck::new(camera(), NewcomerParams::default());
         assert!(check.check(&prev, &cur, &[], depth, lk).is_none());
         let asked = check.check(&prev, &cur, &[], depth, lk).unwrap();
         assert_eq!(asked.why, Why::Moving);
+        (prev, cur, raw, check)
+    }
+
+    #[test]
+    fn a_request_the_segmenter_finds_nothing_for_is_made_again_once() {
+        let (prev, cur, raw, mut check) = patch_asked_for();
+        let depth = DepthImage {
+            raw: &raw,
+            per_metre: 5000.0,
+        };
+        let lk = LkParams::default();
+        let asked = check.asked.unwrap();
         // The segmenter's objects lie elsewhere: asked again a frame later,
         // for the same region, within the cooldown.
         check.answered(&labels_over(0, 0, 40, 40), W, true);
@@ -887,16 +900,12 @@ mod tests {
 
     #[test]
     fn a_request_answered_there_or_before_it_is_not_made_again() {
-        let (prev, cur) = pan_with_patch(true);
-        let depth = flat_depth(2.0);
+        let (prev, cur, raw, mut check) = patch_asked_for();
         let depth = DepthImage {
-            raw: &depth,
+            raw: &raw,
             per_metre: 5000.0,
         };
         let lk = LkParams::default();
-        let mut check = NewcomerCheck::new(camera(), NewcomerParams::default());
-        assert!(check.check(&prev, &cur, &[], depth, lk).is_none());
-        assert!(check.check(&prev, &cur, &[], depth, lk).is_some());
         // An answer on a frame segmented before the request (real time: the
         // segmenter was busy) says nothing about the region...
         check.answered(&[0; W * H], W, false);

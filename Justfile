@@ -169,6 +169,31 @@ eval-masks: build setup synth-people
     @echo "== mixed behaviours, hidden by the scene ({{people_mixed}})"
     ./target/release/dynslam masks-eval {{people_mixed}}
 
+# Mask quality beyond seed 5: synth-people's four sequences and people in front with seeds 1-3 (across and mixed, cached in .cache/synth/seedN_*), one line each (segmenter IoU, propagator IoU, entries masked within 3 frames, early segments) and the means: single sequences move either way with any change, the means over ten are the measure (docs/measurements.md, stop 46).
+eval-masks-wide: build setup synth-people
+    #!/usr/bin/env bash
+    set -euo pipefail
+    seqs=("{{people_front}}" "{{people_mixed_front}}" "{{people}}" "{{people_mixed}}")
+    for seed in 1 2 3; do
+        for behaviour in across mixed; do
+            dir=".cache/synth/seed${seed}_${behaviour}"
+            if ! grep -qs '"synth_version": 2,' "$dir/objects.json"; then
+                rm -rf "$dir"
+                ./target/release/dynslam synth "{{tum}}" "$dir" --objects 3 --seed "$seed" --occlusion none --behaviour "$behaviour" > /dev/null
+            fi
+            seqs+=("$dir")
+        done
+    done
+    for seq in "${seqs[@]}"; do
+        ./target/release/dynslam masks-eval "$seq" 2>/dev/null | awk -v name="$(basename "$seq")" '
+            /^segmenter +\(keyframes\)/ { seg = $5 }
+            /^propagator \(1\.\.10 after\)/ { prop = $6 }
+            /^early segments/ { early = $NF }
+            /^people coming into view:/ { gsub(",", "", $5); count = $5; in_time = $13 }
+            END { printf "%-22s segmenter %s  propagator %s  entries in time %s of %s  early segments %s\n", name, seg, prop, in_time, count, early }'
+    done | tee /dev/stderr | awk '{ seg += $3; prop += $5; in_time += $9; count += $11; early += $14; n++ }
+        END { printf "mean over %d: segmenter %.3f  propagator %.3f  entries in time %d of %d  early segments %d\n", n, seg / n, prop / n, in_time, count, early }'
+
 # Loop closing on the rendered circuit (dynslam render --path circuit, cached in .cache/scenes): per-frame time and ATE without and with loop closing, 1000 and 250 ORB features (fewer drift more), back to back.
 bench-loops: build
     #!/usr/bin/env bash

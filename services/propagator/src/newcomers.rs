@@ -252,7 +252,7 @@ impl NewcomerCheck {
     /// nothing: there a request keeps the segmenter busy on every frame it
     /// can take, and on the 2-core machine it then takes the CPU the
     /// propagator and the SLAM need (30 fps unloaded, static shared
-    /// sequence: end-to-end p99 52-64 ms without, 70-98 ms with it, 0.2).
+    /// sequence: end-to-end p99 48-64 ms without, 70-98 ms with it, 0.2).
     pub fn for_pipeline(c: &CameraConfig, routing: &RoutingConfig, realtime: bool) -> Self {
         let camera = Camera::new([c.fx, c.fy, c.cx, c.cy], c.distortion, 1.0, 0.0);
         let params = NewcomerParams {

@@ -143,9 +143,9 @@ pub struct NewcomerCheck {
     /// in two frames in a row at about the same place (a flicker of
     /// mistracked points is not).
     last: Vec<Newcomer>,
-    /// Why the last request was made, until the segmenter's objects on a
-    /// frame after it come ([`NewcomerCheck::answered`]).
-    awaiting: Option<Why>,
+    /// Whether the last request (`asked`) waits for the segmenter's objects
+    /// on a frame after it ([`NewcomerCheck::answered`]).
+    awaiting: bool,
     /// Frames to go before the last request, left unanswered, is made again.
     retry_in: Option<u32>,
     /// The image's shift since the last segmenter run (pixels).
@@ -237,7 +237,7 @@ impl NewcomerCheck {
             cooldown: 0,
             asked: None,
             last: Vec::new(),
-            awaiting: None,
+            awaiting: false,
             retry_in: None,
             unseen_shift: (0.0, 0.0),
             requests: 0,
@@ -294,7 +294,8 @@ impl NewcomerCheck {
         if !after_request {
             return;
         }
-        let (Some(Why::Moving), Some(asked)) = (self.awaiting.take(), self.asked) else {
+        let awaiting = std::mem::take(&mut self.awaiting);
+        let Some(asked) = self.asked.filter(|a| awaiting && a.why == Why::Moving) else {
             return;
         };
         if width == 0 {
@@ -408,7 +409,7 @@ impl NewcomerCheck {
     fn request(&mut self, region: Newcomer) -> Newcomer {
         self.cooldown = self.params.cooldown_frames;
         self.asked = Some(region);
-        self.awaiting = Some(region.why);
+        self.awaiting = true;
         self.requests += 1;
         match region.why {
             Why::Moving => {}
@@ -761,6 +762,14 @@ mod tests {
         (0..W * H).flat_map(|_| raw.to_ne_bytes()).collect()
     }
 
+    /// `raw` depth (5000 units a metre) as the check reads it.
+    fn depth_view(raw: &[u8]) -> DepthImage<'_> {
+        DepthImage {
+            raw,
+            per_metre: 5000.0,
+        }
+    }
+
     fn camera() -> Camera {
         Camera::new([260.0, 260.0, 160.0, 120.0], [0.0; 5], 5000.0, 0.0)
     }
@@ -796,10 +805,7 @@ mod tests {
     fn a_region_moving_unlike_the_camera_asks_once_per_cooldown() {
         let (prev, cur) = pan_with_patch(true);
         let depth = flat_depth(2.0);
-        let depth = DepthImage {
-            raw: &depth,
-            per_metre: 5000.0,
-        };
+        let depth = depth_view(&depth);
         let mut check = NewcomerCheck::new(camera(), NewcomerParams::default());
         // Found in a first frame, asked for when found again in the next.
         assert!(check
@@ -827,10 +833,7 @@ mod tests {
     #[test]
     fn a_region_elsewhere_asks_within_the_cooldown() {
         let depth = flat_depth(2.0);
-        let depth = DepthImage {
-            raw: &depth,
-            per_metre: 5000.0,
-        };
+        let depth = depth_view(&depth);
         let mut check = NewcomerCheck::new(camera(), NewcomerParams::default());
         let (prev, cur) = pan_with_patch_at(true, 200.0);
         let lk = LkParams::default();
@@ -862,10 +865,7 @@ mod tests {
         let (prev, cur) = pan_with_patch(true);
         let raw = flat_depth(2.0);
         let mut check = NewcomerCheck::new(camera(), NewcomerParams::default());
-        let depth = DepthImage {
-            raw: &raw,
-            per_metre: 5000.0,
-        };
+        let depth = depth_view(&raw);
         let lk = LkParams::default();
         assert!(check.check(&prev, &cur, &[], depth, lk).is_none());
         let asked = check.check(&prev, &cur, &[], depth, lk).unwrap();
@@ -876,10 +876,7 @@ mod tests {
     #[test]
     fn a_request_the_segmenter_finds_nothing_for_is_made_again_once() {
         let (prev, cur, raw, mut check) = patch_asked_for();
-        let depth = DepthImage {
-            raw: &raw,
-            per_metre: 5000.0,
-        };
+        let depth = depth_view(&raw);
         let lk = LkParams::default();
         let asked = check.asked.unwrap();
         // The segmenter's objects lie elsewhere: asked again a frame later,
@@ -901,10 +898,7 @@ mod tests {
     #[test]
     fn a_request_answered_there_or_before_it_is_not_made_again() {
         let (prev, cur, raw, mut check) = patch_asked_for();
-        let depth = DepthImage {
-            raw: &raw,
-            per_metre: 5000.0,
-        };
+        let depth = depth_view(&raw);
         let lk = LkParams::default();
         // An answer on a frame segmented before the request (real time: the
         // segmenter was busy) says nothing about the region...
@@ -923,10 +917,7 @@ mod tests {
         // The scene shifts 3 px left a frame: new view comes in at the right.
         let (prev, cur) = pan_with_patch(false);
         let depth = flat_depth(2.0);
-        let depth = DepthImage {
-            raw: &depth,
-            per_metre: 5000.0,
-        };
+        let depth = depth_view(&depth);
         let lk = LkParams::default();
         let params = NewcomerParams {
             unseen_view_share: 0.05,
@@ -968,10 +959,7 @@ mod tests {
     #[test]
     fn a_pan_alone_or_a_covered_mover_asks_nothing() {
         let depth = flat_depth(2.0);
-        let depth = DepthImage {
-            raw: &depth,
-            per_metre: 5000.0,
-        };
+        let depth = depth_view(&depth);
         let (prev, cur) = pan_with_patch(false);
         let mut check = NewcomerCheck::new(camera(), NewcomerParams::default());
         assert_eq!(
@@ -1011,10 +999,7 @@ mod tests {
                 ((m * 5000.0) as u16).to_ne_bytes()
             })
             .collect();
-        let depth = DepthImage {
-            raw: &depth,
-            per_metre: 5000.0,
-        };
+        let depth = depth_view(&depth);
         let mut check = NewcomerCheck::new(camera(), NewcomerParams::default());
         assert_eq!(
             check.check(&prev, &cur, &[], depth, LkParams::default()),

@@ -177,10 +177,7 @@ eval-masks-wide: build setup synth-people
     for seed in 1 2 3; do
         for behaviour in across mixed; do
             dir=".cache/synth/seed${seed}_${behaviour}"
-            if ! grep -qs '"synth_version": 2,' "$dir/objects.json"; then
-                rm -rf "$dir"
-                ./target/release/dynslam synth "{{tum}}" "$dir" --objects 3 --seed "$seed" --occlusion none --behaviour "$behaviour" > /dev/null
-            fi
+            {{just_executable()}} --justfile "{{justfile()}}" _synth-once "$dir" "$seed" none "$behaviour"
             seqs+=("$dir")
         done
     done
@@ -224,20 +221,16 @@ bench-loops: build
     done
 
 # People in the shared fr1_rpy sequence (3, seed 5) into .cache/synth: hidden by the nearer scene and passing in front of it, walking across and in mixed behaviours.
-synth-people: build
+synth-people: build (_synth-once people "5" "scene" "across") (_synth-once people_front "5" "none" "across") (_synth-once people_mixed "5" "scene" "mixed") (_synth-once people_mixed_front "5" "none" "mixed")
+
+# Three people over the shared fr1_rpy into DIR, once: objects.json records what a synth wrote; one of another synth_version is from an older synth and is made again.
+_synth-once dir seed occlusion behaviour:
     #!/usr/bin/env bash
     set -euo pipefail
-    synth_once() {
-        # objects.json records what a synth wrote; one of another synth_version is from an older synth.
-        if ! grep -qs '"synth_version": 2,' "$1/objects.json"; then
-            rm -rf "$1"
-            ./target/release/dynslam synth "{{tum}}" "$1" --objects 3 --seed 5 --occlusion "$2" --behaviour "$3"
-        fi
-    }
-    synth_once "{{people}}" scene across
-    synth_once "{{people_front}}" none across
-    synth_once "{{people_mixed}}" scene mixed
-    synth_once "{{people_mixed_front}}" none mixed
+    if ! grep -qs '"synth_version": 2,' "{{dir}}/objects.json"; then
+        rm -rf "{{dir}}"
+        ./target/release/dynslam synth "{{tum}}" "{{dir}}" --objects 3 --seed "{{seed}}" --occlusion "{{occlusion}}" --behaviour "{{behaviour}}"
+    fi
 
 # Motion check (services.slam.motion_check) on a box carried through the shared room (dynslam synth --boxes 1, no masks): frames where it is found, features dropped (issue 21's bar: found in 80 %).
 eval-motion:

@@ -6,11 +6,15 @@
 //! `slam-bench [DATASET] [--masks] [--skip N] [--limit N] [--threads N] [--local-ba N]
 //! [--readout S] [--inline-mapping] [--no-triangulation] [--fusion] [--loop-closing [--no-global-ba]]
 //! [--features N] [--match-ratio R] [--monocular] [--extractor own|kornia] [--no-image-turn]
-//! [--keep-every N [--offset K]] [--drop-share P [--seed S]] [--verbose] [--out trajectory.txt]`
+//! [--keep-every N [--offset K]] [--drop-share P [--seed S]] [--frames-of trajectory.txt] [--verbose]
+//! [--out trajectory.txt]`
 //! `--keep-every` and `--drop-share` leave frames out as real time does on a
 //! busy machine (the newest frame wins, the ones between are dropped):
 //! `just bench-dropped` runs a set of such copies and prints their ATE
-//! against every frame's.
+//! against every frame's. `--frames-of` keeps the frames a trajectory has
+//! (a real-time run's `trajectory.txt`): the core alone on exactly the
+//! frames real time tracked, to tell what the frames cost from what the
+//! rest of the pipeline does.
 //! With more than one extraction thread it also measures extraction alone
 //! with 1 and N threads on the same frames and prints the ratio.
 //! `--masks` feeds the ground-truth masks of a `dynslam synth` folder.
@@ -60,6 +64,11 @@ struct Args {
     /// Seed of --drop-share's choice.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Keep only the frames whose timestamps this TUM trajectory has (e.g.
+    /// a real-time run's trajectory.txt), after --skip and --limit and
+    /// before --keep-every and --drop-share.
+    #[arg(long)]
+    frames_of: Option<PathBuf>,
     /// Print every frame's state, features, inliers and keyframe flag.
     #[arg(long)]
     verbose: bool,
@@ -155,9 +164,19 @@ fn left_out(frames: Vec<FrameEntry>, args: &Args) -> Result<Vec<FrameEntry>> {
         "--drop-share {}: not a share of the frames in [0, 0.9)",
         args.drop_share
     );
+    let stamps = match &args.frames_of {
+        Some(path) => Some(Trajectory::load_tum(path)?.stamps),
+        None => None,
+    };
+    let listed = |f: &FrameEntry| {
+        stamps
+            .as_ref()
+            .is_none_or(|s| s.iter().any(|t| (t - f.timestamp).abs() < 1e-4))
+    };
     let mut rng = slam_core::rng::SplitMix64::new(args.seed);
     let kept: Vec<FrameEntry> = frames
         .into_iter()
+        .filter(listed)
         .skip(args.offset)
         .step_by(args.keep_every)
         .enumerate()
@@ -166,7 +185,7 @@ fn left_out(frames: Vec<FrameEntry>, args: &Args) -> Result<Vec<FrameEntry>> {
         .collect();
     anyhow::ensure!(
         kept.len() >= 2,
-        "only {} frame(s) left after --keep-every/--drop-share",
+        "only {} frame(s) left after --keep-every/--drop-share/--frames-of",
         kept.len()
     );
     Ok(kept)
@@ -591,5 +610,34 @@ mod tests {
             let e = kept(bad).unwrap_err().to_string();
             assert!(e.contains(named), "{bad:?}: {e}");
         }
+    }
+
+    #[test]
+    fn frames_of_a_trajectory_are_the_ones_it_lists() {
+        let dir = std::env::temp_dir().join(format!("slam-bench-frames-of-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let listed = dir.join("trajectory.txt");
+        // Frames 2, 3 and 7 (timestamps as a run writes them, 6 decimals).
+        let line = |i: usize| format!("{:.6} 0 0 0 0 0 0 1\n", i as f64 / 30.0);
+        let text = format!(
+            "# timestamp tx ty tz qx qy qz qw\n{}{}{}",
+            line(2),
+            line(3),
+            line(7)
+        );
+        std::fs::write(&listed, text).unwrap();
+        let path = listed.to_str().unwrap();
+        assert_eq!(kept(&["--frames-of", path]).unwrap(), vec![2, 3, 7]);
+        // --keep-every on top takes every Nth of the listed frames.
+        assert_eq!(
+            kept(&["--frames-of", path, "--keep-every", "2"]).unwrap(),
+            vec![2, 7]
+        );
+        let missing = dir.join("none.txt");
+        let e = kept(&["--frames-of", missing.to_str().unwrap()])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("none.txt"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -140,7 +140,7 @@ bench-dropped dataset=tum *args="": build
         m = v[int((NR + 1) / 2)]
         printf "frames left out, %d copies: median %.4f m (%.2fx every frame), mean %.4f m, worst %.4f m\n", NR, m, m / full, s / NR, v[NR] }'
 
-# The whole pipeline in real time on the shared sequence: 30 and 60 fps, each without and with 2 busy processes pinned to the cores; tracked fps, drops, end-to-end p50/p99, masked share, ATE next to lockstep's (writes bench-results/realtime.json).
+# The whole pipeline in real time on the shared sequence: 30 and 60 fps, each without and with 2 busy processes pinned to the cores; tracked fps, drops, end-to-end p50/p99, masked share, keyframes and ATE next to lockstep's (writes bench-results/realtime.json).
 bench-realtime *args="": build setup
     ./target/release/realtime-bench {{args}}
 

@@ -165,13 +165,20 @@ fn left_out(frames: Vec<FrameEntry>, args: &Args) -> Result<Vec<FrameEntry>> {
         args.drop_share
     );
     let stamps = match &args.frames_of {
-        Some(path) => Some(Trajectory::load_tum(path)?.stamps),
+        Some(path) => {
+            let mut stamps = Trajectory::load_tum(path)?.stamps;
+            stamps.sort_by(f64::total_cmp);
+            Some(stamps)
+        }
         None => None,
     };
+    // A frame is listed when a stamp lies within 0.1 ms of its timestamp
+    // (trajectories are written with 6 decimals).
     let listed = |f: &FrameEntry| {
-        stamps
-            .as_ref()
-            .is_none_or(|s| s.iter().any(|t| (t - f.timestamp).abs() < 1e-4))
+        stamps.as_ref().is_none_or(|s| {
+            let i = s.partition_point(|&t| t < f.timestamp - 1e-4);
+            s.get(i).is_some_and(|&t| t <= f.timestamp + 1e-4)
+        })
     };
     let mut rng = slam_core::rng::SplitMix64::new(args.seed);
     let kept: Vec<FrameEntry> = frames

@@ -73,6 +73,10 @@ struct RunFigures {
     /// masks that were there but empty (a propagator that lost every
     /// object) count in `masked_share`, not here.
     masks_removed_features_share: f64,
+    /// Keyframes the run made: in real time a keyframe waits for its
+    /// frame's segmenter masks, and under load the segmenter's pace caps
+    /// them (docs/measurements.md, "What real time adds, separated").
+    keyframes: usize,
     end_to_end_p50_ms: Option<f64>,
     end_to_end_p99_ms: Option<f64>,
     ate_rmse_m: Option<f64>,
@@ -83,6 +87,7 @@ struct RunFigures {
 struct Results {
     dataset: PathBuf,
     lockstep_ate_rmse_m: Option<f64>,
+    lockstep_keyframes: Option<usize>,
     runs: Vec<RunFigures>,
 }
 
@@ -104,7 +109,7 @@ fn main() -> Result<()> {
         .with_context(|| args.dataset.display().to_string())?;
     let base = PipelineConfig::load_or_default(args.config.as_deref())?;
     let batch = run_dir::new_run_id();
-    let lockstep_ate = if args.no_lockstep {
+    let lockstep = if args.no_lockstep {
         None
     } else {
         let lockstep = run_once(
@@ -115,13 +120,16 @@ fn main() -> Result<()> {
             |c| c.run.mode = ClockMode::Lockstep,
         )?;
         eprintln!(
-            "lockstep: {}/{} tracked, ATE {}",
+            "lockstep: {}/{} tracked, {} keyframes, ATE {}",
             lockstep.tracked,
             lockstep.frames,
+            lockstep.keyframes,
             fmt_m(lockstep.ate_rmse_m)
         );
-        lockstep.ate_rmse_m
+        Some(lockstep)
     };
+    let lockstep_ate = lockstep.as_ref().and_then(|l| l.ate_rmse_m);
+    let lockstep_keyframes = lockstep.as_ref().map(|l| l.keyframes);
     let conditions = if args.only.is_empty() {
         vec![(30, 0), (30, args.load), (60, 0), (60, args.load)]
     } else {
@@ -158,7 +166,7 @@ fn main() -> Result<()> {
         args.runs
     );
     println!(
-        "{:>6} {:>5} {:>18} {:>9} {:>10} {:>10} {:>8} {:>9} {:>22}",
+        "{:>6} {:>5} {:>18} {:>9} {:>10} {:>10} {:>8} {:>9} {:>14} {:>22}",
         "fps in",
         "busy",
         "tracked fps",
@@ -167,6 +175,7 @@ fn main() -> Result<()> {
         "e2e p99",
         "masked",
         "removing",
+        "kf (lockstep)",
         "ATE (lockstep)"
     );
     for &(fps_in, load) in &conditions {
@@ -185,7 +194,7 @@ fn main() -> Result<()> {
             .map(|r| r.tracked_fps)
             .fold(f64::INFINITY, f64::min);
         println!(
-            "{:>6} {:>5} {:>10.1} ({:>5.1}) {:>8.1}% {:>10} {:>10} {:>7.0}% {:>8.0}% {:>10} ({})",
+            "{:>6} {:>5} {:>10.1} ({:>5.1}) {:>8.1}% {:>10} {:>10} {:>7.0}% {:>8.0}% {:>6.0} ({:>5}) {:>10} ({})",
             fps,
             load,
             med(&|r| Some(r.tracked_fps)).unwrap_or(0.0),
@@ -195,6 +204,8 @@ fn main() -> Result<()> {
             fmt_ms(med(&|r| r.end_to_end_p99_ms)),
             100.0 * med(&|r| Some(r.masked_share)).unwrap_or(0.0),
             100.0 * med(&|r| Some(r.masks_removed_features_share)).unwrap_or(0.0),
+            med(&|r| Some(r.keyframes as f64)).unwrap_or(0.0),
+            lockstep_keyframes.map_or("-".to_string(), |k| k.to_string()),
             fmt_m(med(&|r| r.ate_rmse_m)),
             fmt_m(lockstep_ate)
         );
@@ -205,6 +216,7 @@ fn main() -> Result<()> {
     let results = Results {
         dataset,
         lockstep_ate_rmse_m: lockstep_ate,
+        lockstep_keyframes,
         runs,
     };
     std::fs::write(&args.out, serde_json::to_string_pretty(&results)?)
@@ -268,6 +280,7 @@ fn figures(rows: &[FrameRow], speed: f64, run_dir: PathBuf) -> RunFigures {
         dropped_pct: 100.0 * dropped as f64 / rows.len().max(1) as f64,
         masked_share: masked as f64 / tracked.len().max(1) as f64,
         masks_removed_features_share: removing as f64 / tracked.len().max(1) as f64,
+        keyframes: tracked.iter().filter(|r| r.keyframe).count(),
         end_to_end_p50_ms: None,
         end_to_end_p99_ms: None,
         ate_rmse_m: None,

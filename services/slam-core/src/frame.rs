@@ -132,9 +132,7 @@ impl Frame {
             depth,
             colours,
             bounds,
-            level_scales: (0..params.orb.levels)
-                .map(|l| params.orb.scale_factor.powi(l as i32) as f64)
-                .collect(),
+            level_scales: extractor.level_scales(),
             masked,
             width,
             height,

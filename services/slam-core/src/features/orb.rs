@@ -9,6 +9,7 @@
 //! fixed seed: descriptors are comparable across runs and machines.
 
 use std::borrow::Cow;
+use std::sync::Arc;
 
 use super::fast::Fast;
 use crate::rng::SplitMix64;
@@ -262,6 +263,9 @@ pub struct OrbExtractor {
     pattern_x: Vec<f32>,
     pattern_y: Vec<f32>,
     disc: [isize; 16],
+    /// Each level's scale relative to level 0 (`scale_factor^l`, f32 as
+    /// the levels are resized), shared with the frames it extracts.
+    level_scales: Arc<[f64]>,
 }
 
 impl OrbExtractor {
@@ -271,12 +275,15 @@ impl OrbExtractor {
             pattern_x: pattern().iter().flatten().map(|p| p.0).collect(),
             pattern_y: pattern().iter().flatten().map(|p| p.1).collect(),
             disc: disc_half_widths(),
+            level_scales: (0..params.levels)
+                .map(|l| params.scale_factor.powi(l as i32) as f64)
+                .collect(),
         }
     }
 
-    /// Scale of `level` relative to level 0.
-    pub fn scale(&self, level: u8) -> f32 {
-        self.params.scale_factor.powi(level as i32)
+    /// Each pyramid level's scale relative to level 0.
+    pub fn level_scales(&self) -> Arc<[f64]> {
+        self.level_scales.clone()
     }
 
     /// Keypoints and descriptors of `img`. `keep(x, y)` (level-0 pixel

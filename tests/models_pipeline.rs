@@ -19,6 +19,50 @@ fn segmenter_config(model_line: &str) -> String {
 }
 
 #[test]
+fn real_time_takes_the_320_export_unless_a_size_is_set() {
+    // Unset, the input size follows the clock mode: in real time the
+    // segmenter's pace bounds the keyframes, so the smaller export.
+    let dir = scratch("yolo-realtime");
+    let config = write_config(&dir, &segmenter_config(""));
+    let rt = run(
+        &shared_tum(),
+        &config,
+        &dir.join("runs"),
+        &format!("yolort{}", std::process::id()),
+        &["--mode", "realtime", "--limit", "30"],
+    );
+    assert!(rt.success(), "{}", rt.stderr());
+    assert!(
+        rt.stderr()
+            .contains("YOLOv8-seg input 320 px (Realtime mode)"),
+        "{}",
+        rt.stderr()
+    );
+    let rows = read_rows(&rt.run_dir);
+    assert!(
+        rows.iter().any(|r| r["mask_source"] == "segmenter"),
+        "no segmenter masks in real time"
+    );
+    assert_no_shm_left(&rt.run_id);
+    // A size that is set wins over the mode.
+    let config = write_config(&dir, &segmenter_config("input_size = 480"));
+    let set = run(
+        &shared_tum(),
+        &config,
+        &dir.join("runs"),
+        &format!("yolort480{}", std::process::id()),
+        &["--mode", "realtime", "--limit", "10"],
+    );
+    assert!(set.success(), "{}", set.stderr());
+    assert!(
+        set.stderr()
+            .contains("YOLOv8-seg input 480 px (Realtime mode)"),
+        "{}",
+        set.stderr()
+    );
+}
+
+#[test]
 fn real_segmenter_runs_on_keyframes_and_its_latency_is_reported() {
     let dir = scratch("yolo-pipeline");
     // No model named: the export for the default input size (480, made by
@@ -35,6 +79,12 @@ fn real_segmenter_runs_on_keyframes_and_its_latency_is_reported() {
     assert!(
         run.stderr()
             .contains("segmenter ready with model 'yolov8-seg'"),
+        "{}",
+        run.stderr()
+    );
+    assert!(
+        run.stderr()
+            .contains("YOLOv8-seg input 480 px (Lockstep mode)"),
         "{}",
         run.stderr()
     );

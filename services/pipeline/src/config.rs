@@ -411,8 +411,9 @@ impl Default for ServicesConfig {
             segmenter: ServiceConfig {
                 backend: "yolov8-seg".into(),
                 // No model and no input_size: the segmenter takes its
-                // default export (480); a model or model_path naming a
-                // known export brings that export's size.
+                // default export for the clock mode (480 in lockstep, 320
+                // in real time); a model or model_path naming a known
+                // export brings that export's size.
                 classes: DEFAULT_DYNAMIC_CLASSES.map(String::from).to_vec(),
                 score_threshold: Some(0.25),
                 weak_score_threshold: Some(0.05),
@@ -473,7 +474,8 @@ pub struct ServiceConfig {
     pub iou_threshold: Option<f32>,
     /// Model backends: the movable classes that become dynamic masks (names).
     pub classes: Vec<String>,
-    /// Model backends: square network input size in pixels.
+    /// Model backends: square network input size in pixels (YOLOv8-seg
+    /// unset: the named export's, else 480 in lockstep and 320 in real time).
     pub input_size: Option<u32>,
     /// Model backends: ONNX Runtime intra-op threads; SLAM: feature
     /// extraction threads (pyramid levels in parallel; default 2).

@@ -25,7 +25,15 @@ fn main() -> ExitCode {
     let args = Args::parse();
     run_service(ServiceKind::Segmenter, &args.service, |ctx| {
         let yolo: &ModelFactory = &|ctx| {
-            let settings = YoloSettings::from_config(&ctx.config.services.segmenter)?;
+            let settings =
+                YoloSettings::for_mode(&ctx.config.services.segmenter, ctx.config.run.mode)?;
+            // Unset, the size depends on the clock mode: say which it is.
+            tracing::info!(
+                "YOLOv8-seg input {} px ({:?} mode): {}",
+                settings.input_size,
+                ctx.config.run.mode,
+                settings.model.display()
+            );
             let env = init_runtime(&ctx.config.onnxruntime)?;
             Ok(Box::new(YoloSeg::load(env, settings)?))
         };

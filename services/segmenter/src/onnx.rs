@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context, Result};
 use ort::session::Session;
 use ort::value::TensorRef;
-use pipeline::config::ServiceConfig;
+use pipeline::config::{ClockMode, ServiceConfig};
 use pipeline::mask_worker::MaskModel;
 use pipeline::runtime::InputError;
 use pipeline::views::{DepthImage, FrameView, MasksView};
@@ -61,10 +61,26 @@ pub const MODELS: [(usize, &str, &str); 3] = [
 /// The input size of the shared export (the others are derived from it).
 pub const SHARED_INPUT_SIZE: usize = 320;
 
-/// The input size used when `input_size` is not set (as in the shipped
-/// configuration): on synthesised people 480 has 60-75 % of 640's IoU gain
-/// over 320 at 0.58x 640's time (README "Segmenter input size").
+/// The input size used in lockstep when `input_size` is not set (as in the
+/// shipped configuration): on synthesised people 480 has 60-75 % of 640's
+/// IoU gain over 320 at 0.58x 640's time (README "Segmenter input size").
 pub const DEFAULT_INPUT_SIZE: usize = 480;
+
+/// The input size used in real time when `input_size` is not set. There
+/// the segmenter's pace bounds the keyframes (a keyframe waits for its own
+/// masks), and at 480 a loaded 2-core machine got too few of them: static
+/// sequence, 60 fps with 2 busy processes, ATE 1.30x lockstep at 480 and
+/// 1.20x at 320 over 16 runs each (docs/measurements.md, stop 47/48).
+pub const REALTIME_DEFAULT_INPUT_SIZE: usize = 320;
+
+/// The input size that an unset `input_size` (and no model naming an
+/// export) means in a run of this clock mode.
+pub fn default_input_size(mode: ClockMode) -> usize {
+    match mode {
+        ClockMode::Lockstep => DEFAULT_INPUT_SIZE,
+        ClockMode::Realtime => REALTIME_DEFAULT_INPUT_SIZE,
+    }
+}
 
 /// The entry of [`MODELS`] for an input size; another size is an error
 /// naming the key and the sizes there are.
@@ -83,8 +99,15 @@ pub fn export_for(
 impl YoloSettings {
     /// Resolves and verifies the settings of `[services.segmenter]`: every
     /// problem is an [`InputError`] that names the key or file. Without
-    /// `model`, the export of [`MODELS`] for `input_size` is used.
+    /// `model`, the export of [`MODELS`] for `input_size` is used; without
+    /// either, the lockstep default ([`DEFAULT_INPUT_SIZE`]).
     pub fn from_config(cfg: &ServiceConfig) -> Result<Self> {
+        Self::for_mode(cfg, ClockMode::Lockstep)
+    }
+
+    /// [`Self::from_config`] for a run in `mode`: an unset `input_size`
+    /// with no model naming an export means [`default_input_size`].
+    pub fn for_mode(cfg: &ServiceConfig, mode: ClockMode) -> Result<Self> {
         // A known export named by `model` or by the file name of
         // `model_path` brings its own input size, so pointing `model_path`
         // at the shared 320 file works without also setting `input_size`.
@@ -111,7 +134,7 @@ impl YoloSettings {
             }
             (Some(n), _) => n as usize,
             (None, Some(m)) => m.0,
-            (None, None) => DEFAULT_INPUT_SIZE,
+            (None, None) => default_input_size(mode),
         };
         if input_size == 0 || !input_size.is_multiple_of(32) {
             return Err(InputError(format!(
@@ -391,6 +414,33 @@ mod tests {
             err.contains("services.segmenter.input_size") && err.contains("320, 480, 640"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn an_unset_input_size_is_480_in_lockstep_and_320_in_real_time() {
+        assert_eq!(default_input_size(ClockMode::Lockstep), 480);
+        assert_eq!(default_input_size(ClockMode::Realtime), 320);
+        // (The run with the model found beside the repo:
+        // tests/models_pipeline.rs.) A set size wins over the mode.
+        let err = YoloSettings::for_mode(
+            &ServiceConfig {
+                input_size: Some(416),
+                ..Default::default()
+            },
+            ClockMode::Realtime,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("416"), "{err}");
+        // A model naming an export wins too.
+        let shared = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../../shared/models/yolov8n-seg_f32.onnx");
+        let named = ServiceConfig {
+            model_path: Some(shared),
+            ..Default::default()
+        };
+        let lockstep = YoloSettings::for_mode(&named, ClockMode::Lockstep).unwrap();
+        assert_eq!(lockstep.input_size, 320);
     }
 
     #[test]

@@ -314,7 +314,9 @@ pub fn evaluate(
     if let Some(n) = limit {
         frames.truncate(n);
     }
-    let settings = YoloSettings::from_config(&config.services.segmenter)?;
+    // The export the config's runs would use (its clock mode decides an
+    // unset input size).
+    let settings = YoloSettings::for_mode(&config.services.segmenter, config.run.mode)?;
     let mut segmenter = YoloSeg::load(init_runtime(&config.onnxruntime)?, settings)?;
     let mut propagator = LkPropagator::new(PropagatorParams::default());
     if config.routing.early_segment_requests {

@@ -21,12 +21,33 @@ const MIN_POINTS_WITH_DEPTH: usize = 100;
 /// Starts `map` (empty) from `frame`; false when the frame has too few
 /// keypoints with depth (the next frame tries again).
 pub(crate) fn initialise_rgbd(tracking: &mut Tracking, map: &mut Map, frame: &Frame) -> bool {
-    let with_depth = frame.depth.iter().filter(|d| d.is_some()).count();
-    if with_depth < MIN_POINTS_WITH_DEPTH {
+    initialise_rgbd_at(tracking, map, frame, &Isometry3::identity())
+}
+
+/// Whether `frame` has the keypoints with depth to start a map.
+pub(crate) fn can_start_rgbd(frame: &Frame) -> bool {
+    frame.depth.iter().filter(|d| d.is_some()).count() >= MIN_POINTS_WITH_DEPTH
+}
+
+/// [`initialise_rgbd`] with the frame's camera at `pose_cw` (camera from
+/// world) instead of at the world's origin.
+pub(crate) fn initialise_rgbd_at(
+    tracking: &mut Tracking,
+    map: &mut Map,
+    frame: &Frame,
+    pose_cw: &Isometry3<f64>,
+) -> bool {
+    if !can_start_rgbd(frame) {
         return false;
     }
-    let pose = Isometry3::identity();
-    tracking.insert_keyframe(map, frame, &pose, &vec![None; frame.kps.len()], with_depth);
+    let with_depth = frame.depth.iter().filter(|d| d.is_some()).count();
+    tracking.insert_keyframe(
+        map,
+        frame,
+        pose_cw,
+        &vec![None; frame.kps.len()],
+        with_depth,
+    );
     true
 }
 

@@ -153,14 +153,14 @@ impl State {
 /// keyframes are made from propagated masks again.
 const SEGMENTER_PATIENCE: u64 = 60;
 
-/// A map of at most this many keyframes is young: in real time a frame the
-/// keyframe rule picks goes in now with the masks it was tracked with,
-/// instead of waiting for (or leaving the keyframe to) segmenter masks. A
-/// map this young cannot relocalise (ORB-SLAM2 resets one lost this young),
-/// and on a loaded machine the niced segmenter may take a second or more to
-/// answer: at 60 fps with two busy processes 3 of 6 runs lost tracking for
-/// good after the first keyframe without this rule, 0 of 8 with it.
-const YOUNG_MAP_KEYFRAMES: u32 = 5;
+/// A map of at most this many keyframes is young (the core's measure: lost,
+/// it is started again): in real time a frame the keyframe rule picks goes
+/// in now with the masks it was tracked with, instead of waiting for (or
+/// leaving the keyframe to) segmenter masks. On a loaded machine the niced
+/// segmenter may take a second or more to answer: at 60 fps with two busy
+/// processes 3 of 6 runs lost tracking for good after the first keyframe
+/// without this rule, 0 of 8 with it.
+const YOUNG_MAP_KEYFRAMES: u32 = slam_core::system::YOUNG_MAP_KEYFRAMES as u32;
 
 fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
     let loops_out = outputs.loops.as_deref();

@@ -421,7 +421,10 @@ fn main() -> Result<()> {
         "local mapping: {} points triangulated, {} duplicates fused, {} observations added",
         mapped.triangulated, mapped.fused, mapped.observations_added
     );
-    println!("relocalisations (by bag of words): {relocalised}");
+    println!(
+        "relocalisations (by bag of words): {relocalised}; young maps lost and started again: {}",
+        system.map_restarts()
+    );
     if args.motion_check {
         println!(
             "motion check: {moving} of {features} features dropped ({:.2} %)",

@@ -18,26 +18,28 @@ fn segmenter_config(model_line: &str) -> String {
     )
 }
 
+/// A real-time run of `limit` shared frames with the real segmenter; it
+/// must succeed and log the export it took.
+fn realtime_run(dir: &std::path::Path, model_line: &str, limit: &str, logged: &str) -> RunResult {
+    let config = write_config(dir, &segmenter_config(model_line));
+    let run = run(
+        &shared_tum(),
+        &config,
+        &dir.join("runs"),
+        &format!("yolort{limit}-{}", std::process::id()),
+        &["--mode", "realtime", "--limit", limit],
+    );
+    assert!(run.success(), "{}", run.stderr());
+    assert!(run.stderr().contains(logged), "{}", run.stderr());
+    run
+}
+
 #[test]
 fn real_time_takes_the_320_export_unless_a_size_is_set() {
     // Unset, the input size follows the clock mode: in real time the
     // segmenter's pace bounds the keyframes, so the smaller export.
     let dir = scratch("yolo-realtime");
-    let config = write_config(&dir, &segmenter_config(""));
-    let rt = run(
-        &shared_tum(),
-        &config,
-        &dir.join("runs"),
-        &format!("yolort{}", std::process::id()),
-        &["--mode", "realtime", "--limit", "30"],
-    );
-    assert!(rt.success(), "{}", rt.stderr());
-    assert!(
-        rt.stderr()
-            .contains("YOLOv8-seg input 320 px (Realtime mode)"),
-        "{}",
-        rt.stderr()
-    );
+    let rt = realtime_run(&dir, "", "30", "YOLOv8-seg input 320 px (Realtime mode)");
     let rows = read_rows(&rt.run_dir);
     assert!(
         rows.iter().any(|r| r["mask_source"] == "segmenter"),
@@ -45,20 +47,11 @@ fn real_time_takes_the_320_export_unless_a_size_is_set() {
     );
     assert_no_shm_left(&rt.run_id);
     // A size that is set wins over the mode.
-    let config = write_config(&dir, &segmenter_config("input_size = 480"));
-    let set = run(
-        &shared_tum(),
-        &config,
-        &dir.join("runs"),
-        &format!("yolort480{}", std::process::id()),
-        &["--mode", "realtime", "--limit", "10"],
-    );
-    assert!(set.success(), "{}", set.stderr());
-    assert!(
-        set.stderr()
-            .contains("YOLOv8-seg input 480 px (Realtime mode)"),
-        "{}",
-        set.stderr()
+    realtime_run(
+        &dir,
+        "input_size = 480",
+        "10",
+        "YOLOv8-seg input 480 px (Realtime mode)",
     );
 }
 

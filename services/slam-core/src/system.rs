@@ -579,14 +579,8 @@ impl System {
         (frame, raw)
     }
 
-    /// The map's start (not in localization mode: it adds nothing, so an
-    /// empty map stays empty). RGB-D: the first keyframe from `frame`.
-    /// Monocular: two keyframes, once `frame` and an earlier reference
-    /// view reconstruct; the reference's frame joins the trajectory at the
-    /// world's origin.
-    /// RGB-D: a map of this run that is still young
-    /// ([`YOUNG_MAP_KEYFRAMES`]) and has been lost
-    /// [`RESTART_AFTER_LOST_S`] is given up: its
+    /// RGB-D: a map of this run that is still young ([`YOUNG_MAP_KEYFRAMES`])
+    /// and has been lost for [`RESTART_AFTER_LOST_S`] is given up: its
     /// keyframes are culled (the frames tracked in it keep their poses) and
     /// `frame` starts the map again at the last tracked pose. True when it
     /// did (`tracked` is then the new start's).
@@ -636,6 +630,11 @@ impl System {
         true
     }
 
+    /// The map's start (not in localization mode: it adds nothing, so an
+    /// empty map stays empty). RGB-D: the first keyframe from `frame`.
+    /// Monocular: two keyframes, once `frame` and an earlier reference
+    /// view reconstruct; the reference's frame joins the trajectory at the
+    /// world's origin.
     fn initialise(&mut self, frame: &Frame, timestamp: f64) -> Tracked {
         let not_yet = Tracked {
             state: TrackingState::NotInitialised,

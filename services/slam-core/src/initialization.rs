@@ -21,26 +21,30 @@ const MIN_POINTS_WITH_DEPTH: usize = 100;
 /// Starts `map` (empty) from `frame`; false when the frame has too few
 /// keypoints with depth (the next frame tries again).
 pub(crate) fn initialise_rgbd(tracking: &mut Tracking, map: &mut Map, frame: &Frame) -> bool {
-    initialise_rgbd_at(tracking, map, frame, &Isometry3::identity())
+    let Some(with_depth) = points_to_start(frame) else {
+        return false;
+    };
+    start_rgbd_at(tracking, map, frame, with_depth, &Isometry3::identity());
+    true
 }
 
-/// Whether `frame` has the keypoints with depth to start a map.
-pub(crate) fn can_start_rgbd(frame: &Frame) -> bool {
-    frame.depth.iter().filter(|d| d.is_some()).count() >= MIN_POINTS_WITH_DEPTH
+/// The keypoints of `frame` with depth, when there are enough to start a
+/// map.
+pub(crate) fn points_to_start(frame: &Frame) -> Option<usize> {
+    let with_depth = frame.depth.iter().filter(|d| d.is_some()).count();
+    (with_depth >= MIN_POINTS_WITH_DEPTH).then_some(with_depth)
 }
 
-/// [`initialise_rgbd`] with the frame's camera at `pose_cw` (camera from
-/// world) instead of at the world's origin.
-pub(crate) fn initialise_rgbd_at(
+/// Makes `frame` (`with_depth` from [`points_to_start`]) the map's first
+/// keyframe with its camera at `pose_cw` (camera from world): its
+/// keypoints with depth become the map's points.
+pub(crate) fn start_rgbd_at(
     tracking: &mut Tracking,
     map: &mut Map,
     frame: &Frame,
+    with_depth: usize,
     pose_cw: &Isometry3<f64>,
-) -> bool {
-    if !can_start_rgbd(frame) {
-        return false;
-    }
-    let with_depth = frame.depth.iter().filter(|d| d.is_some()).count();
+) {
     tracking.insert_keyframe(
         map,
         frame,
@@ -48,7 +52,6 @@ pub(crate) fn initialise_rgbd_at(
         &vec![None; frame.kps.len()],
         with_depth,
     );
-    true
 }
 
 /// Keypoints a frame needs to be a reference or a second view, and matches

@@ -16,7 +16,7 @@ use crate::features::mask::DynamicMask;
 use crate::features::orb::OrbExtractor;
 use crate::frame::{Frame, RgbdInput};
 use crate::initialization::{
-    can_start_rgbd, initialise_rgbd, initialise_rgbd_at, MonocularInitializer,
+    initialise_rgbd, points_to_start, start_rgbd_at, MonocularInitializer,
 };
 use crate::io::map_file::{MapFile, MapFileError};
 use crate::local_mapping::checkpoint::{CheckpointPolicy, Checkpointer};
@@ -601,9 +601,12 @@ impl System {
         let Some(last) = self.tracking.last_pose() else {
             return false;
         };
-        if !long_enough || !young || !allowed || !can_start_rgbd(frame) {
+        if !long_enough || !young || !allowed {
             return false;
         }
+        let Some(with_depth) = points_to_start(frame) else {
+            return false;
+        };
         // A keyframe still waiting for its masks belongs to the old map.
         self.pending_keyframe = None;
         self.mapped_keyframe = None;
@@ -612,9 +615,7 @@ impl System {
             self.map.cull_keyframe(k);
         }
         self.tracking.reset();
-        if !initialise_rgbd_at(&mut self.tracking, &mut self.map, frame, &last) {
-            return false;
-        }
+        start_rgbd_at(&mut self.tracking, &mut self.map, frame, with_depth, &last);
         self.lost_in_a_row = (0, 0.0);
         self.map_restarts += 1;
         tracing::warn!(

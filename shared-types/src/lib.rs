@@ -411,6 +411,9 @@ pub enum ServiceKind {
     Segmenter = 2,
     Propagator = 3,
     Slam = 4,
+    /// The ROS 2 bridge: optional, off the frame path (not in [`Self::ALL`],
+    /// the services every run has).
+    Bridge = 5,
 }
 
 impl ServiceKind {
@@ -426,6 +429,7 @@ impl ServiceKind {
             2 => Some(Self::Segmenter),
             3 => Some(Self::Propagator),
             4 => Some(Self::Slam),
+            5 => Some(Self::Bridge),
             _ => None,
         }
     }
@@ -436,6 +440,7 @@ impl ServiceKind {
             Self::Segmenter => "segmenter",
             Self::Propagator => "propagator",
             Self::Slam => "slam",
+            Self::Bridge => "bridge",
         }
     }
 }

@@ -78,7 +78,7 @@ pub fn qos(topic: Topic) -> Qos {
 
 /// Upper bounds per service; restarts briefly leave a dead process's ports
 /// registered until the dead-node cleanup runs, hence the margin.
-const MAX_PUBLISHERS: usize = 4;
+const MAX_PUBLISHERS: usize = 8;
 const MAX_SUBSCRIBERS: usize = 8;
 const MAX_NODES: usize = 24;
 

@@ -88,7 +88,10 @@ pub fn is_input_error(status: ExitStatus) -> bool {
 /// The program (and leading arguments) of a service: the configured
 /// `command`, or the binary of that name next to the running `dynslam`.
 pub fn service_program(config: &PipelineConfig, kind: ServiceKind) -> Result<Vec<String>> {
-    let cmd = &config.service(kind).command;
+    let cmd = match kind {
+        ServiceKind::Bridge => &config.bridge.command,
+        _ => &config.service(kind).command,
+    };
     if !cmd.is_empty() {
         return Ok(cmd.clone());
     }

@@ -83,6 +83,10 @@ enum Command {
         /// Run id (letters, digits, '-'); default: a fresh random one.
         #[arg(long)]
         run_id: Option<String>,
+        /// Publish the run as ROS 2 topics over rmw_zenoh (`[bridge]
+        /// enabled = true`; README "ROS 2").
+        #[arg(long)]
+        ros2: bool,
     },
     /// Continue a run whose supervisor was stopped or killed.
     Resume {
@@ -332,8 +336,10 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             sensor,
             limit,
             run_id,
+            ros2,
         } => {
             let mut cfg = load_config(config.as_deref())?;
+            cfg.bridge.enabled |= ros2;
             if let Some(s) = sensor {
                 cfg.services.slam.sensor = match s {
                     SensorArg::Rgbd => "rgbd",

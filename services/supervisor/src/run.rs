@@ -254,6 +254,10 @@ impl Supervisor {
                 .to_string_lossy()
                 .into_owned(),
         ];
+        if kind == ServiceKind::Bridge {
+            args.push("--run-dir".into());
+            args.push(run_dir.to_string_lossy().into_owned());
+        }
         if kind == ServiceKind::CameraReader {
             args.push("--start-seq".into());
             args.push(self.next_seq.to_string());
@@ -719,7 +723,8 @@ impl Supervisor {
             }
         }
         if !stopping {
-            for kind in ServiceKind::ALL {
+            let kinds: Vec<ServiceKind> = self.services.iter().map(|s| s.kind).collect();
+            for kind in kinds {
                 if let SvcState::Backoff { until } = self.svc(kind).state {
                     if now >= until {
                         self.start(kind);
@@ -773,13 +778,17 @@ impl Supervisor {
     /// Stops the services in order: the source first, the SLAM last.
     fn stop_all(&mut self) {
         let grace = Duration::from_millis(self.config.supervisor.stop_timeout_ms);
+        // The bridge last: it publishes the SLAM's last poses.
         for kind in [
             ServiceKind::CameraReader,
             ServiceKind::Segmenter,
             ServiceKind::Propagator,
             ServiceKind::Slam,
+            ServiceKind::Bridge,
         ] {
-            let svc = self.svc(kind);
+            let Some(svc) = self.services.iter_mut().find(|s| s.kind == kind) else {
+                continue; // no bridge in this run
+            };
             let Some(mut child) = svc.child.take() else {
                 // A service given up on stays `failed` (the run's outcome says why).
                 if !svc.failed() {
@@ -974,7 +983,8 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
         run_dir::log_resume(&run_dir, last.seq + 1)?;
     }
     let mut services = Vec::new();
-    for kind in ServiceKind::ALL {
+    let bridge = config.bridge.enabled.then_some(ServiceKind::Bridge);
+    for kind in ServiceKind::ALL.into_iter().chain(bridge) {
         services.push(Service {
             kind,
             program: service_program(&config, kind)?,
@@ -1116,11 +1126,13 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
     let period = Duration::from_millis(sup.config.supervisor.watch_period_ms);
     let lockstep = sup.config.run.mode == ClockMode::Lockstep;
 
-    for kind in [
-        ServiceKind::Slam,
-        ServiceKind::Segmenter,
-        ServiceKind::Propagator,
-    ] {
+    let kinds: Vec<ServiceKind> = sup
+        .services
+        .iter()
+        .map(|s| s.kind)
+        .filter(|k| *k != ServiceKind::CameraReader)
+        .collect();
+    for kind in kinds {
         sup.start(kind);
     }
     // A progress bar over the frames the source will play (known up front
@@ -1140,7 +1152,9 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
             let Some(kind) = ServiceKind::from_u32(msg.service) else {
                 continue;
             };
-            let svc = sup.svc(kind);
+            let Some(svc) = sup.services.iter_mut().find(|s| s.kind == kind) else {
+                continue;
+            };
             if svc.pid() != Some(msg.pid) {
                 continue;
             }
@@ -1151,7 +1165,9 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
             tracing::info!("{} ready (pid {})", kind.as_str(), msg.pid);
             // Lockstep recovery: the in-flight frame may have been lost with
             // the dead process; the reader publishes it again.
-            if lockstep && was_restart && kind != ServiceKind::CameraReader && !sup.complete() {
+            // The bridge is off the frame path: nothing to replay for it.
+            let on_frame_path = !matches!(kind, ServiceKind::CameraReader | ServiceKind::Bridge);
+            if lockstep && was_restart && on_frame_path && !sup.complete() {
                 control.send(Control {
                     replay_seq: sup.next_seq,
                 })?;
@@ -1165,7 +1181,14 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
                     Some(SvcState::Ready) | Some(SvcState::Failed { .. })
                 )
             };
-            if up(ServiceKind::Slam) && up(ServiceKind::Segmenter) && up(ServiceKind::Propagator) {
+            // The bridge, when there is one, sees the first poses too; one
+            // given up on (no router library, a bad Zenoh file) holds nothing.
+            let bridge_up = up(ServiceKind::Bridge) || !sup.config.bridge.enabled;
+            if up(ServiceKind::Slam)
+                && up(ServiceKind::Segmenter)
+                && up(ServiceKind::Propagator)
+                && bridge_up
+            {
                 if sup.external.is_some() {
                     sup.svc(ServiceKind::CameraReader).state = SvcState::External;
                     sup.status_dirty = true;

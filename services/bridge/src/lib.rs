@@ -1,0 +1,16 @@
+//! The ROS 2 bridge: dynslam's poses, TF, path, state and diagnostics as
+//! ROS 2 topics, in rmw_zenoh's wire format (README "ROS 2").
+//!
+//! - [`cdr`]: the CDR encoding of ROS 2 messages (writer and a checked reader);
+//! - [`msgs`]: the messages, their DDS names and RIHS01 type hashes;
+//! - [`rmw`]: rmw_zenoh's key expressions, liveliness tokens and attachments;
+//! - [`frames`]: REP-103 / REP-105 frames from the SLAM's camera poses;
+//! - [`node`]: a ROS 2 node on a Zenoh session;
+//! - [`outputs`]: what is published when, and what survives a restart.
+
+pub mod cdr;
+pub mod frames;
+pub mod msgs;
+pub mod node;
+pub mod outputs;
+pub mod rmw;

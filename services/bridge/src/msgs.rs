@@ -1,0 +1,318 @@
+//! The ROS 2 messages the bridge publishes, in CDR, field for field as
+//! their Jazzy definitions (`ros2 interface show nav_msgs/msg/Odometry`),
+//! with each type's DDS name and RIHS01 type hash.
+//!
+//! The hashes are those rosidl generates from the Jazzy definitions (the
+//! same for Kilted and Rolling: these types have not changed);
+//! `tests/ros2_bridge.rs` checks every one against the independent
+//! implementation in the `rosbags` package (its Jazzy type store).
+
+use crate::cdr::{CdrError, Reader, Writer};
+
+/// A message type as rmw_zenoh names it in key expressions and tokens.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MsgType {
+    /// `nav_msgs/msg/Odometry`
+    pub ros: &'static str,
+    /// `nav_msgs::msg::dds_::Odometry_`
+    pub dds: &'static str,
+    /// `RIHS01_<sha256 of the type description>`
+    pub hash: &'static str,
+}
+
+pub const ODOMETRY: MsgType = MsgType {
+    ros: "nav_msgs/msg/Odometry",
+    dds: "nav_msgs::msg::dds_::Odometry_",
+    hash: "RIHS01_3cc97dc7fb7502f8714462c526d369e35b603cfc34d946e3f2eda2766dfec6e0",
+};
+pub const TF_MESSAGE: MsgType = MsgType {
+    ros: "tf2_msgs/msg/TFMessage",
+    dds: "tf2_msgs::msg::dds_::TFMessage_",
+    hash: "RIHS01_e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d020f087",
+};
+pub const PATH: MsgType = MsgType {
+    ros: "nav_msgs/msg/Path",
+    dds: "nav_msgs::msg::dds_::Path_",
+    hash: "RIHS01_1957a5bb3cee5da65c4e52e52b65a93df227efce4c20f8458b36e73066ca334b",
+};
+pub const POSE_ARRAY: MsgType = MsgType {
+    ros: "geometry_msgs/msg/PoseArray",
+    dds: "geometry_msgs::msg::dds_::PoseArray_",
+    hash: "RIHS01_af0cc36d190e104d546d168d6b39df04fa4b4ccecf59cb4c9ed328d3d5004aa0",
+};
+pub const DIAGNOSTIC_ARRAY: MsgType = MsgType {
+    ros: "diagnostic_msgs/msg/DiagnosticArray",
+    dds: "diagnostic_msgs::msg::dds_::DiagnosticArray_",
+    hash: "RIHS01_5a8a36efb05fb25070fa0fb3810290c0e6cd4862b54a8fb975a1ee8dc55a333e",
+};
+pub const STRING: MsgType = MsgType {
+    ros: "std_msgs/msg/String",
+    dds: "std_msgs::msg::dds_::String_",
+    hash: "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18",
+};
+
+/// Every type the bridge publishes (the interop test checks each hash).
+pub const ALL_TYPES: [MsgType; 6] = [
+    ODOMETRY,
+    TF_MESSAGE,
+    PATH,
+    POSE_ARRAY,
+    DIAGNOSTIC_ARRAY,
+    STRING,
+];
+
+/// `builtin_interfaces/Time`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Time {
+    pub sec: i32,
+    pub nanosec: u32,
+}
+
+impl Time {
+    /// Seconds since the epoch (a camera's stamp) to ROS time; a stamp
+    /// outside ROS's 32-bit seconds is clamped.
+    pub fn from_secs(t: f64) -> Self {
+        if !t.is_finite() || t <= 0.0 {
+            return Self::default();
+        }
+        let sec = t.floor();
+        let mut nanosec = ((t - sec) * 1e9).round() as u32;
+        let mut sec = sec.min(i32::MAX as f64) as i32;
+        if nanosec >= 1_000_000_000 {
+            nanosec -= 1_000_000_000;
+            sec = sec.saturating_add(1);
+        }
+        Self { sec, nanosec }
+    }
+    pub fn as_secs(self) -> f64 {
+        self.sec as f64 + self.nanosec as f64 * 1e-9
+    }
+}
+
+/// `std_msgs/Header`.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Header {
+    pub stamp: Time,
+    pub frame_id: String,
+}
+
+/// A rigid transform: translation (metres) and unit quaternion (x y z w).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct RosPose {
+    pub position: [f64; 3],
+    pub orientation: [f64; 4],
+}
+
+/// `nav_msgs/Odometry` (the twist in `child_frame_id`'s axes).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Odometry {
+    pub header: Header,
+    pub child_frame_id: String,
+    pub pose: RosPose,
+    pub pose_covariance: [f64; 36],
+    pub linear: [f64; 3],
+    pub angular: [f64; 3],
+    pub twist_covariance: [f64; 36],
+}
+
+/// `geometry_msgs/TransformStamped`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TransformStamped {
+    pub header: Header,
+    pub child_frame_id: String,
+    pub transform: RosPose,
+}
+
+/// `diagnostic_msgs/DiagnosticStatus`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DiagnosticStatus {
+    /// 0 OK, 1 WARN, 2 ERROR, 3 STALE.
+    pub level: u8,
+    pub name: String,
+    pub message: String,
+    pub hardware_id: String,
+    pub values: Vec<(String, String)>,
+}
+
+pub mod level {
+    pub const OK: u8 = 0;
+    pub const WARN: u8 = 1;
+    pub const ERROR: u8 = 2;
+    pub const STALE: u8 = 3;
+}
+
+fn header(w: &mut Writer, h: &Header) {
+    w.i32(h.stamp.sec);
+    w.u32(h.stamp.nanosec);
+    w.string(&h.frame_id);
+}
+
+fn pose(w: &mut Writer, p: &RosPose) {
+    for v in p.position.iter().chain(&p.orientation) {
+        w.f64(*v);
+    }
+}
+
+fn read_header(r: &mut Reader) -> Result<Header, CdrError> {
+    Ok(Header {
+        stamp: Time {
+            sec: r.i32("header.stamp.sec")?,
+            nanosec: r.u32("header.stamp.nanosec")?,
+        },
+        frame_id: r.string("header.frame_id")?,
+    })
+}
+
+fn read_pose(r: &mut Reader, what: &'static str) -> Result<RosPose, CdrError> {
+    let mut p = RosPose::default();
+    for v in p.position.iter_mut().chain(p.orientation.iter_mut()) {
+        *v = r.f64(what)?;
+    }
+    Ok(p)
+}
+
+pub fn odometry(o: &Odometry) -> Vec<u8> {
+    let mut w = Writer::new();
+    header(&mut w, &o.header);
+    w.string(&o.child_frame_id);
+    pose(&mut w, &o.pose);
+    for v in o.pose_covariance {
+        w.f64(v);
+    }
+    for v in o.linear.iter().chain(&o.angular) {
+        w.f64(*v);
+    }
+    for v in o.twist_covariance {
+        w.f64(v);
+    }
+    w.finish()
+}
+
+fn transform_stamped(w: &mut Writer, t: &TransformStamped) {
+    header(w, &t.header);
+    w.string(&t.child_frame_id);
+    pose(w, &t.transform);
+}
+
+/// `tf2_msgs/TFMessage`.
+pub fn tf_message(transforms: &[TransformStamped]) -> Vec<u8> {
+    let mut w = Writer::new();
+    w.len(transforms.len());
+    for t in transforms {
+        transform_stamped(&mut w, t);
+    }
+    w.finish()
+}
+
+/// Smallest CDR size of a `TransformStamped` (empty names): the bound that
+/// keeps a hostile count from allocating.
+const MIN_TRANSFORM_BYTES: usize = 4 + 4 + 4 + 1 + 4 + 1 + 7 * 8;
+
+/// Reads a `tf2_msgs/TFMessage` (a robot's odom -> base_link, tests).
+pub fn read_tf_message(message: &[u8]) -> Result<Vec<TransformStamped>, CdrError> {
+    let mut r = Reader::new(message)?;
+    let n = r.len("transforms", MIN_TRANSFORM_BYTES)?;
+    let mut out = Vec::with_capacity(n);
+    for _ in 0..n {
+        let header = read_header(&mut r)?;
+        let child_frame_id = r.string("child_frame_id")?;
+        let transform = read_pose(&mut r, "transform")?;
+        out.push(TransformStamped {
+            header,
+            child_frame_id,
+            transform,
+        });
+    }
+    Ok(out)
+}
+
+/// `nav_msgs/Path`: every pose a `PoseStamped` with its own stamp.
+pub fn path(h: &Header, poses: &[(Time, RosPose)]) -> Vec<u8> {
+    let mut w = Writer::new();
+    header(&mut w, h);
+    w.len(poses.len());
+    for (stamp, p) in poses {
+        header(
+            &mut w,
+            &Header {
+                stamp: *stamp,
+                frame_id: h.frame_id.clone(),
+            },
+        );
+        pose(&mut w, p);
+    }
+    w.finish()
+}
+
+/// `geometry_msgs/PoseArray`.
+pub fn pose_array(h: &Header, poses: &[RosPose]) -> Vec<u8> {
+    let mut w = Writer::new();
+    header(&mut w, h);
+    w.len(poses.len());
+    for p in poses {
+        pose(&mut w, p);
+    }
+    w.finish()
+}
+
+/// `diagnostic_msgs/DiagnosticArray`.
+pub fn diagnostic_array(h: &Header, status: &[DiagnosticStatus]) -> Vec<u8> {
+    let mut w = Writer::new();
+    header(&mut w, h);
+    w.len(status.len());
+    for s in status {
+        w.u8(s.level);
+        w.string(&s.name);
+        w.string(&s.message);
+        w.string(&s.hardware_id);
+        w.len(s.values.len());
+        for (k, v) in &s.values {
+            w.string(k);
+            w.string(v);
+        }
+    }
+    w.finish()
+}
+
+/// `std_msgs/String`.
+pub fn string(data: &str) -> Vec<u8> {
+    let mut w = Writer::new();
+    w.string(data);
+    w.finish()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn capture_stamps_become_ros_time() {
+        let t = Time::from_secs(1305031102.175304);
+        assert_eq!(t.sec, 1305031102);
+        assert!((t.nanosec as i64 - 175_304_000).abs() < 1000);
+        assert_eq!(Time::from_secs(-1.0), Time::default());
+        assert_eq!(Time::from_secs(f64::NAN), Time::default());
+        assert_eq!(Time::from_secs(1.9999999999).nanosec, 0);
+    }
+
+    #[test]
+    fn tf_messages_read_back_what_was_written() {
+        let t = TransformStamped {
+            header: Header {
+                stamp: Time { sec: 5, nanosec: 7 },
+                frame_id: "odom".into(),
+            },
+            child_frame_id: "base_link".into(),
+            transform: RosPose {
+                position: [1.0, 2.0, 3.0],
+                orientation: [0.0, 0.0, 0.0, 1.0],
+            },
+        };
+        let b = tf_message(&[t.clone(), t.clone()]);
+        assert_eq!(read_tf_message(&b).unwrap(), vec![t.clone(), t]);
+        // Every truncation is an error, never a panic.
+        for cut in 0..b.len() {
+            assert!(read_tf_message(&b[..cut]).is_err(), "cut at {cut}");
+        }
+    }
+}

@@ -1,0 +1,151 @@
+//! A ROS 2 node on rmw_zenoh: the Zenoh session, the node's liveliness
+//! token, and publishers that put CDR samples with rmw_zenoh's attachment.
+
+use anyhow::{anyhow, Context, Result};
+use pipeline::config::BridgeConfig;
+use zenoh::liveliness::LivelinessToken;
+use zenoh::pubsub::Publisher;
+use zenoh::qos::CongestionControl;
+use zenoh::{Session, Wait};
+
+use crate::msgs::MsgType;
+use crate::rmw::{self, Durability, NodeInfo};
+
+/// The Zenoh configuration of the node: the configured file as it is, or
+/// rmw_zenoh's session defaults (a peer that connects to the router, listens
+/// on localhost only, no multicast scouting) with `mode` and `connect`.
+pub fn session_config(cfg: &BridgeConfig) -> Result<zenoh::Config> {
+    if let Some(file) = &cfg.zenoh_config {
+        return zenoh::Config::from_file(file).map_err(|e| {
+            anyhow!(
+                "bridge.zenoh_config {}: not a usable Zenoh configuration: {e}",
+                file.display()
+            )
+        });
+    }
+    let mut c = zenoh::Config::default();
+    let set = |c: &mut zenoh::Config, key: &str, value: String| {
+        c.insert_json5(key, &value)
+            .map_err(|e| anyhow!("Zenoh setting {key} = {value}: {e}"))
+    };
+    set(&mut c, "mode", format!("{:?}", cfg.mode))?;
+    let endpoints: Vec<String> = cfg.connect.iter().map(|e| format!("{e:?}")).collect();
+    set(
+        &mut c,
+        "connect/endpoints",
+        format!("[{}]", endpoints.join(",")),
+    )
+    .with_context(|| format!("bridge.connect {:?}", cfg.connect))?;
+    set(&mut c, "scouting/multicast/enabled", "false".into())?;
+    if cfg.mode == "peer" {
+        set(&mut c, "listen/endpoints", "[\"tcp/localhost:0\"]".into())?;
+    }
+    Ok(c)
+}
+
+/// One node of the ROS 2 graph.
+pub struct RosNode {
+    session: Session,
+    info: NodeInfo,
+    next_entity: u32,
+    _token: LivelinessToken,
+}
+
+impl RosNode {
+    pub fn open(cfg: &BridgeConfig) -> Result<Self> {
+        let config = session_config(cfg)?;
+        let session = zenoh::open(config)
+            .wait()
+            .map_err(|e| anyhow!("cannot open the Zenoh session ({:?}): {e}", cfg.connect))?;
+        let info = NodeInfo {
+            domain: cfg.domain_id,
+            zid: session.zid().to_string(),
+            node_id: 0,
+            namespace: cfg.namespace.clone(),
+            name: cfg.node_name.clone(),
+        };
+        let token = session
+            .liveliness()
+            .declare_token(info.node_token())
+            .wait()
+            .map_err(|e| anyhow!("cannot declare the node's liveliness token: {e}"))?;
+        Ok(Self {
+            session,
+            info,
+            next_entity: 1,
+            _token: token,
+        })
+    }
+
+    pub fn zid(&self) -> &str {
+        &self.info.zid
+    }
+
+    /// Routers this session is connected to (none: no ROS 2 node can see us).
+    pub fn routers(&self) -> usize {
+        self.session.info().routers_zid().wait().count()
+    }
+
+    /// A publisher on `topic` (resolved under the node's namespace).
+    pub fn publisher(
+        &mut self,
+        topic: &str,
+        ty: MsgType,
+        durability: Durability,
+        depth: u32,
+    ) -> Result<RosPublisher> {
+        let fq = rmw::resolve(&self.info.namespace, topic);
+        let key = rmw::topic_key(self.info.domain, &fq, &ty);
+        let entity = self.next_entity;
+        self.next_entity += 1;
+        let token_key =
+            self.info
+                .publisher_token(entity, &fq, &ty, &rmw::qos_token(durability, depth));
+        let publisher = self
+            .session
+            .declare_publisher(key.clone())
+            // rmw_zenoh: a keep-last publisher drops rather than blocks.
+            .congestion_control(CongestionControl::Drop)
+            .wait()
+            .map_err(|e| anyhow!("cannot declare the publisher of {fq} ({key}): {e}"))?;
+        let token = self
+            .session
+            .liveliness()
+            .declare_token(token_key.clone())
+            .wait()
+            .map_err(|e| anyhow!("cannot declare the liveliness token of {fq}: {e}"))?;
+        Ok(RosPublisher {
+            topic: fq,
+            gid: rmw::gid(&token_key),
+            sequence_number: 0,
+            publisher,
+            _token: token,
+        })
+    }
+}
+
+/// A ROS 2 publisher: its samples are numbered 1, 2, ... (continued from
+/// `sequence_number` after a restart).
+pub struct RosPublisher {
+    pub topic: String,
+    gid: [u8; 16],
+    pub sequence_number: i64,
+    publisher: Publisher<'static>,
+    _token: LivelinessToken,
+}
+
+impl RosPublisher {
+    pub fn publish(&mut self, cdr: Vec<u8>) -> Result<()> {
+        self.sequence_number += 1;
+        let now = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_nanos() as i64)
+            .unwrap_or(0);
+        let attachment = rmw::attachment(self.sequence_number, now, &self.gid);
+        self.publisher
+            .put(cdr)
+            .attachment(attachment)
+            .wait()
+            .map_err(|e| anyhow!("cannot publish on {}: {e}", self.topic))
+    }
+}

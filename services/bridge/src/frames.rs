@@ -77,11 +77,7 @@ impl Frames {
 
 /// Velocity between two poses of the base `dt` seconds apart, in the base's
 /// own axes (nav_msgs/Odometry's twist is in `child_frame_id`).
-pub fn twist(
-    before: &Isometry3<f64>,
-    after: &Isometry3<f64>,
-    dt: f64,
-) -> ([f64; 3], [f64; 3]) {
+pub fn twist(before: &Isometry3<f64>, after: &Isometry3<f64>, dt: f64) -> ([f64; 3], [f64; 3]) {
     let rel = before.inverse() * after;
     let v: Vector3<f64> = rel.translation.vector / dt;
     let w: Vector3<f64> = rel.rotation.scaled_axis() / dt;
@@ -101,7 +97,11 @@ mod tests {
     fn the_default_mounting_points_the_optical_axis_forward() {
         let m = mounting(
             [0.0; 3],
-            [-std::f64::consts::FRAC_PI_2, 0.0, -std::f64::consts::FRAC_PI_2],
+            [
+                -std::f64::consts::FRAC_PI_2,
+                0.0,
+                -std::f64::consts::FRAC_PI_2,
+            ],
         );
         let forward = m.rotation * Vector3::z();
         let right = m.rotation * Vector3::x();
@@ -115,14 +115,21 @@ mod tests {
     fn the_ros_map_is_the_base_at_the_first_frame() {
         let m = mounting([0.1, 0.0, 0.3], [-1.2, 0.1, -1.5]);
         let f = Frames::new("ros", m);
-        assert!(close(&f.map_t_base(&Isometry3::identity()), &Isometry3::identity()));
+        assert!(close(
+            &f.map_t_base(&Isometry3::identity()),
+            &Isometry3::identity()
+        ));
         // A camera that moved 1 m along its optical axis: the base moved 1 m
         // along the map's x for the optical default mounting.
         let f = Frames::new(
             "ros",
             mounting(
                 [0.0; 3],
-                [-std::f64::consts::FRAC_PI_2, 0.0, -std::f64::consts::FRAC_PI_2],
+                [
+                    -std::f64::consts::FRAC_PI_2,
+                    0.0,
+                    -std::f64::consts::FRAC_PI_2,
+                ],
             ),
         );
         let moved = Isometry3::translation(0.0, 0.0, 1.0);

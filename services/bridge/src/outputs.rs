@@ -20,7 +20,9 @@ use serde::{Deserialize, Serialize};
 use shared_types::{Pose, Track, TrackState};
 
 use crate::frames::{self, Frames};
-use crate::msgs::{self, level, DiagnosticStatus, Header, Odometry, RosPose, Time, TransformStamped};
+use crate::msgs::{
+    self, level, DiagnosticStatus, Header, Odometry, RosPose, Time, TransformStamped,
+};
 use crate::node::{RosNode, RosPublisher};
 use crate::rmw::Durability;
 
@@ -167,11 +169,7 @@ impl Outputs {
     /// base -> camera (the mounting), on the transient-local topic; sent
     /// again every diagnostics period for subscribers that come later.
     fn publish_static(&mut self) -> Result<()> {
-        let stamp = self
-            .path_poses
-            .first()
-            .map(|(t, _)| *t)
-            .unwrap_or_default();
+        let stamp = self.path_poses.first().map(|(t, _)| *t).unwrap_or_default();
         let t = TransformStamped {
             header: self.header(stamp, &self.cfg.base_frame),
             child_frame_id: self.cfg.camera_frame.clone(),
@@ -360,8 +358,14 @@ impl Outputs {
             hardware_id: String::new(),
             values: vec![
                 ("state".into(), message.into()),
-                ("tracked_fps".into(), format!("{:.1}", w.tracked as f64 / period)),
-                ("dropped_fps".into(), format!("{:.1}", dropped as f64 / period)),
+                (
+                    "tracked_fps".into(),
+                    format!("{:.1}", w.tracked as f64 / period),
+                ),
+                (
+                    "dropped_fps".into(),
+                    format!("{:.1}", dropped as f64 / period),
+                ),
                 (
                     "end_to_end_p99_ms".into(),
                     p99.map_or("n/a".into(), |v| format!("{v:.1}")),

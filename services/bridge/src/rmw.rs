@@ -166,7 +166,10 @@ mod tests {
             namespace: "/robot1".into(),
             name: "dynslam".into(),
         };
-        assert_eq!(node.node_token(), "@ros2_lv/3/a1b2/0/0/NN/%/%robot1/dynslam");
+        assert_eq!(
+            node.node_token(),
+            "@ros2_lv/3/a1b2/0/0/NN/%/%robot1/dynslam"
+        );
         let qos = qos_token(Durability::Volatile, 10);
         assert_eq!(qos, "::,10:,:,:,,");
         let t = node.publisher_token(4, "/robot1/dynslam/odometry", &ODOMETRY, &qos);

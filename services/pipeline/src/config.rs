@@ -97,7 +97,11 @@ impl Default for BridgeConfig {
             base_frame: "base_link".into(),
             camera_frame: "camera_optical_frame".into(),
             camera_xyz: [0.0; 3],
-            camera_rpy: [-std::f64::consts::FRAC_PI_2, 0.0, -std::f64::consts::FRAC_PI_2],
+            camera_rpy: [
+                -std::f64::consts::FRAC_PI_2,
+                0.0,
+                -std::f64::consts::FRAC_PI_2,
+            ],
             odometry_topic: "dynslam/odometry".into(),
             path_topic: "dynslam/path".into(),
             keyframes_topic: "dynslam/keyframes".into(),
@@ -168,10 +172,18 @@ impl BridgeConfig {
             ("bridge.camera_rpy", self.camera_rpy),
         ] {
             if v.iter().any(|x| !x.is_finite()) {
-                return Err(format!("key `{key}`: {v:?} has a value that is not a number"));
+                return Err(format!(
+                    "key `{key}`: {v:?} has a value that is not a number"
+                ));
             }
         }
-        in_range("bridge.path_period_s", self.path_period_s, 0.05, 3600.0, "a period in seconds")?;
+        in_range(
+            "bridge.path_period_s",
+            self.path_period_s,
+            0.05,
+            3600.0,
+            "a period in seconds",
+        )?;
         in_range(
             "bridge.diagnostics_period_s",
             self.diagnostics_period_s,
@@ -186,7 +198,11 @@ impl BridgeConfig {
 /// A ROS 2 name: tokens of letters, digits and '_' (not starting with a
 /// digit), separated by '/' where `slashes` allows; no empty token.
 fn ros_name(key: &str, name: &str, slashes: bool) -> Result<(), String> {
-    let bad = |why: &str| Err(format!("key `{key}`: \"{name}\" is not a ROS 2 name ({why})"));
+    let bad = |why: &str| {
+        Err(format!(
+            "key `{key}`: \"{name}\" is not a ROS 2 name ({why})"
+        ))
+    };
     if name.is_empty() {
         return bad("empty");
     }
@@ -200,7 +216,10 @@ fn ros_name(key: &str, name: &str, slashes: bool) -> Result<(), String> {
         if token.starts_with(|c: char| c.is_ascii_digit()) {
             return bad("a part starts with a digit");
         }
-        if let Some(c) = token.chars().find(|c| !(c.is_ascii_alphanumeric() || *c == '_')) {
+        if let Some(c) = token
+            .chars()
+            .find(|c| !(c.is_ascii_alphanumeric() || *c == '_'))
+        {
             return bad(&format!("'{c}': only letters, digits, '_' and '/'"));
         }
     }

@@ -1,0 +1,192 @@
+"""A ROS 2 client we did not write, for tests/ros2_bridge.rs.
+
+`listen`: a Zenoh router (eclipse-zenoh, PyPI) that records every sample and
+liveliness token; each sample is decoded by `rosbags` from its Jazzy type
+store (CDR), and each key's type hash is checked against the RIHS01 that
+`rosbags` computes. `sdk`: `zenoh-ros2-sdk` (ROBOTIS, PyPI) discovers the
+graph and subscribes to the odometry as a ROS 2 node would, with message
+definitions written from rosbags' store (it must not clone anything).
+
+Runs until its standard input closes (or --seconds pass), then writes the
+JSON record named by --out and exits.
+"""
+
+import argparse
+import json
+import os
+import sys
+import threading
+import time
+
+import zenoh
+from rosbags.typesys import Stores, get_typestore
+
+STORE = get_typestore(Stores.ROS2_JAZZY)
+
+
+def ros_type(dds):
+    # nav_msgs::msg::dds_::Odometry_ -> nav_msgs/msg/Odometry
+    pkg, kind, _, name = dds.split("::")
+    return f"{pkg}/{kind}/{name.rstrip('_')}"
+
+
+def pose_list(p):
+    return [p.position.x, p.position.y, p.position.z,
+            p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w]
+
+
+def attachment(a):
+    """rmw_zenoh's attachment: i64 sequence number, i64 source timestamp,
+    the gid's length and the gid."""
+    if a is None:
+        return None
+    b = a.to_bytes()
+    seq = int.from_bytes(b[0:8], "little", signed=True)
+    ts = int.from_bytes(b[8:16], "little", signed=True)
+    n = b[16]
+    return {"seq": seq, "ts": ts, "gid": b[17:17 + n].hex(), "len": len(b)}
+
+
+def summarise(typ, msg):
+    if typ == "nav_msgs/msg/Odometry":
+        return {"stamp": [msg.header.stamp.sec, msg.header.stamp.nanosec],
+                "frame_id": msg.header.frame_id, "child_frame_id": msg.child_frame_id,
+                "pose": pose_list(msg.pose.pose),
+                "covariance0": msg.pose.covariance[0]}
+    if typ == "tf2_msgs/msg/TFMessage":
+        return {"transforms": [{"stamp": [t.header.stamp.sec, t.header.stamp.nanosec],
+                                "frame_id": t.header.frame_id,
+                                "child_frame_id": t.child_frame_id,
+                                "pose": [t.transform.translation.x, t.transform.translation.y,
+                                         t.transform.translation.z, t.transform.rotation.x,
+                                         t.transform.rotation.y, t.transform.rotation.z,
+                                         t.transform.rotation.w]}
+                               for t in msg.transforms]}
+    if typ == "nav_msgs/msg/Path":
+        return {"frame_id": msg.header.frame_id, "poses": len(msg.poses)}
+    if typ == "geometry_msgs/msg/PoseArray":
+        return {"poses": len(msg.poses)}
+    if typ == "diagnostic_msgs/msg/DiagnosticArray":
+        return {"status": [{"name": s.name, "level": int(s.level), "message": s.message,
+                            "values": {kv.key: kv.value for kv in s.values}}
+                           for s in msg.status]}
+    if typ == "std_msgs/msg/String":
+        return {"data": msg.data}
+    return {}
+
+
+def wait_for_end(seconds):
+    done = threading.Event()
+    threading.Thread(target=lambda: (sys.stdin.read(), done.set()), daemon=True).start()
+    done.wait(seconds)
+
+
+def listen(args):
+    conf = zenoh.Config()
+    if args.config:
+        conf = zenoh.Config.from_file(args.config)
+    else:
+        conf.insert_json5("mode", '"router"')
+        conf.insert_json5("listen/endpoints", json.dumps([args.endpoint]))
+        conf.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(conf)
+    lock = threading.Lock()
+    record = {"samples": {}, "tokens": [], "hashes": {}, "errors": []}
+
+    def on_sample(s):
+        key = str(s.key_expr)
+        parts = key.split("/")
+        try:
+            dds, hsh = parts[-2], parts[-1]
+            typ = ros_type(dds)
+            if typ not in record["hashes"]:
+                record["hashes"][typ] = {"key": hsh, "rosbags": STORE.hash_rihs01(typ)}
+            msg = STORE.deserialize_cdr(s.payload.to_bytes(), typ)
+            entry = summarise(typ, msg)
+            entry["attachment"] = attachment(s.attachment)
+        except Exception as e:  # recorded, the test fails on it
+            with lock:
+                record["errors"].append(f"{key}: {e!r}")
+            return
+        topic = "/" + "/".join(parts[1:-2])
+        with lock:
+            record["samples"].setdefault(topic, []).append(entry)
+
+    def on_token(s):
+        with lock:
+            record["tokens"].append([str(s.kind), str(s.key_expr)])
+
+    subs = [session.declare_subscriber(f"{args.domain}/**", on_sample),
+            session.liveliness().declare_subscriber("@ros2_lv/**", on_token, history=True)]
+    print("ready", flush=True)
+    wait_for_end(args.seconds)
+    with lock:
+        text = json.dumps(record)
+    with open(args.out, "w") as f:
+        f.write(text)
+    del subs
+    os._exit(0)  # a zenoh session can hold the interpreter at exit
+
+
+def write_msg_files(root, types):
+    """One .msg file a type and its dependencies, from rosbags' Jazzy store."""
+    for typ in types:
+        text, _ = STORE.generate_msgdef(typ, ros_version=2)
+        sections = text.split("=" * 80 + "\n")
+        main, deps = sections[0], sections[1:]
+        files = {typ: main}
+        for d in deps:
+            head, _, body = d.partition("\n")
+            name = head.removeprefix("MSG: ")
+            pkg, msg = name.split("/")
+            files[f"{pkg}/msg/{msg}"] = body
+        for name, body in files.items():
+            pkg, _, msg = name.split("/")
+            os.makedirs(os.path.join(root, pkg, "msg"), exist_ok=True)
+            with open(os.path.join(root, pkg, "msg", msg + ".msg"), "w") as f:
+                f.write(body)
+
+
+def sdk(args):
+    from zenoh_ros2_sdk import ROS2Subscriber, get_topic_names_and_types
+    from zenoh_ros2_sdk.message_registry import get_registry
+
+    write_msg_files(args.msgs, ["nav_msgs/msg/Odometry"])
+    get_registry(args.msgs)
+    host, port = args.endpoint.removeprefix("tcp/").rsplit(":", 1)
+    received = []
+    sub = ROS2Subscriber(topic=args.topic, msg_type="nav_msgs/msg/Odometry",
+                         callback=lambda m: received.append(
+                             [m.header.stamp.sec, m.header.stamp.nanosec, m.pose.pose.position.x]),
+                         router_ip=host, router_port=int(port), domain_id=args.domain)
+    print("ready", flush=True)
+    topics = []
+    deadline = time.time() + args.seconds
+    while time.time() < deadline and not topics:
+        topics = [t for t, _ in get_topic_names_and_types(domain_id=args.domain, router_ip=host,
+                                                          router_port=int(port))
+                  if t == args.topic]
+        time.sleep(0.2)
+    types = get_topic_names_and_types(domain_id=args.domain, router_ip=host, router_port=int(port))
+    wait_for_end(args.seconds)
+    with open(args.out, "w") as f:
+        json.dump({"topics": types, "received": received, "subscriber_hash": sub.type_hash}, f)
+    os._exit(0)
+
+
+def main():
+    p = argparse.ArgumentParser()
+    p.add_argument("mode", choices=["listen", "sdk"])
+    p.add_argument("--endpoint", default="tcp/127.0.0.1:7447")
+    p.add_argument("--config", help="a Zenoh JSON5 config for the router (TLS)")
+    p.add_argument("--domain", type=int, default=0)
+    p.add_argument("--topic", default="/dynslam/odometry")
+    p.add_argument("--msgs", help="sdk: where to write the message definitions")
+    p.add_argument("--seconds", type=float, default=300)
+    p.add_argument("--out", required=True)
+    args = p.parse_args()
+    listen(args) if args.mode == "listen" else sdk(args)
+
+
+if __name__ == "__main__":
+    main()

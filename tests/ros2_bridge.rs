@@ -500,3 +500,112 @@ fn zenoh_is_in_the_bridges_dependency_tree_only() {
     }
     assert!(tree("bridge").lines().any(|l| l.starts_with("zenoh ")));
 }
+
+/// REP-105 with the robot's own odometry: a robot (rosbags serialising)
+/// publishes odom -> base_link on /tf, with hostile samples among them; the
+/// SLAM publishes map -> odom such that map -> odom -> base_link is its
+/// pose, and drops the hostile samples with a counted warning.
+#[test]
+fn with_the_robots_odometry_the_slam_owns_map_to_odom_and_drops_hostile_samples() {
+    let dir = scratch("ros2-odom");
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let rgb_txt = shared_tum().join("rgb.txt");
+    let router = PyClient::start(
+        "listen",
+        &endpoint,
+        &dir.join("listen.json"),
+        &["--publish-odom", rgb_txt.to_str().unwrap()],
+    );
+    let config = write_config(
+        &dir,
+        &format!(
+            "[bridge]\nconnect = [\"{endpoint}\"]\nodom_frame = \"odom\"\ndiagnostics_period_s = 0.3\n[services.slam]\nbackend = \"scripted\"\nwork_ms = 20\n{NO_MASK_MODELS}"
+        ),
+    );
+    let run_id = format!("ros2odom{}", std::process::id());
+    let run = run(
+        &shared_tum(),
+        &config,
+        &dir.join("runs"),
+        &run_id,
+        &["--ros2", "--limit", "60"],
+    );
+    assert!(run.success(), "{}", run.stderr());
+    let got = router.finish();
+    let status = read_status(&run.run_dir);
+    let bridge = status["children"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["service"] == "bridge")
+        .unwrap()
+        .clone();
+    assert_eq!(
+        bridge["restarts"], 0,
+        "hostile samples never kill the bridge"
+    );
+    assert!(
+        run.stderr().contains("samples on /tf dropped so far"),
+        "no counted warning"
+    );
+
+    // The robot's odometry as the publisher made it (tests/ros2/client.py).
+    let first = std::fs::read_to_string(&rgb_txt)
+        .unwrap()
+        .lines()
+        .find(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .and_then(|l| l.split_whitespace().next()?.parse::<f64>().ok())
+        .unwrap();
+    let odom_t_base = |t: f64| {
+        nalgebra::Isometry3::from_parts(
+            nalgebra::Translation3::new(0.2 * (t - first), 0.05, 0.0),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, 0.3),
+        )
+    };
+    let iso = |v: &Value| {
+        let (t, r) = as_pose(v);
+        nalgebra::Isometry3::from_parts(t.into(), r)
+    };
+    let odom = samples(&got, "/dynslam/odometry");
+    assert_eq!(odom.len(), 60);
+    let ours: Vec<&Value> = samples(&got, "/tf")
+        .iter()
+        .filter_map(|s| s["transforms"].as_array())
+        .flatten()
+        .filter(|t| t["frame_id"] == "map")
+        .collect();
+    assert!(ours.iter().all(|t| t["child_frame_id"] == "odom"));
+    assert!(
+        ours.len() >= 54,
+        "map -> odom for {} of 60 frames",
+        ours.len()
+    );
+    for t in &ours {
+        let o = odom
+            .iter()
+            .find(|o| o["stamp"] == t["stamp"])
+            .expect("an odometry at the transform's stamp");
+        let map_t_base = iso(&t["pose"]) * odom_t_base(stamp(&t["stamp"]));
+        let want = iso(&o["pose"]);
+        assert!(
+            (map_t_base.translation.vector - want.translation.vector).norm() < 1e-6
+                && map_t_base.rotation.angle_to(&want.rotation) < 1e-6,
+            "map -> odom -> base_link is not the odometry at {}",
+            t["stamp"]
+        );
+    }
+    // The diagnostics count what was dropped, by reason.
+    let last = samples(&got, "/diagnostics").last().unwrap().clone();
+    let slam = last["status"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["name"] == "/dynslam: slam")
+        .unwrap()
+        .clone();
+    let refused = slam["values"]["refused_messages"].as_str().unwrap();
+    assert!(
+        refused.contains("wrong type") && refused.contains("unreadable CDR"),
+        "{refused}"
+    );
+}

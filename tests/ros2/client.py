@@ -118,6 +118,8 @@ def listen(args):
 
     subs = [session.declare_subscriber(f"{args.domain}/**", on_sample),
             session.liveliness().declare_subscriber("@ros2_lv/**", on_token, history=True)]
+    if args.publish_odom:
+        threading.Thread(target=publish_odom, args=(session, args), daemon=True).start()
     print("ready", flush=True)
     wait_for_end(args.seconds)
     with lock:
@@ -126,6 +128,60 @@ def listen(args):
         f.write(text)
     del subs
     os._exit(0)  # a zenoh session can hold the interpreter at exit
+
+
+def odom_at(t, t0):
+    """The robot's made-up odometry: 0.2 m/s along x, a fixed 0.3 rad yaw."""
+    import math
+    return [0.2 * (t - t0), 0.05, 0.0, 0.0, 0.0, math.sin(0.15), math.cos(0.15)]
+
+
+def publish_odom(session, args):
+    """odom -> base_link at every frame stamp of an rgb.txt, serialised by
+    rosbags, over and over (30 stamps a message, one message each 10 ms);
+    and a few hostile samples on the same topic."""
+    Header = STORE.types["std_msgs/msg/Header"]
+    Time = STORE.types["builtin_interfaces/msg/Time"]
+    TS = STORE.types["geometry_msgs/msg/TransformStamped"]
+    Transform = STORE.types["geometry_msgs/msg/Transform"]
+    V3 = STORE.types["geometry_msgs/msg/Vector3"]
+    Q = STORE.types["geometry_msgs/msg/Quaternion"]
+    TF = STORE.types["tf2_msgs/msg/TFMessage"]
+    stamps = [float(l.split()[0]) for l in open(args.publish_odom)
+              if l.strip() and not l.startswith("#")]
+    t0 = stamps[0]
+    key = f"{args.domain}/tf/tf2_msgs::msg::dds_::TFMessage_/{STORE.hash_rihs01('tf2_msgs/msg/TFMessage')}"
+    pub = session.declare_publisher(key)
+    msgs = []
+    for i in range(0, len(stamps), 30):
+        ts = []
+        for t in stamps[i:i + 30]:
+            sec = int(t)
+            nsec = int(round((t - sec) * 1e9))
+            o = odom_at(t, t0)
+            ts.append(TS(header=Header(stamp=Time(sec=sec, nanosec=nsec), frame_id="odom"),
+                         child_frame_id="base_link",
+                         transform=Transform(translation=V3(x=o[0], y=o[1], z=o[2]),
+                                             rotation=Q(x=o[3], y=o[4], z=o[5], w=o[6]))))
+        msgs.append(bytes(STORE.serialize_cdr(TF(transforms=ts), "tf2_msgs/msg/TFMessage")))
+    good = msgs[0]
+    hostile = [
+        good[: len(good) // 2],                                 # truncated
+        good[:4] + (0xFFFFFFFF).to_bytes(4, "little") + good[8:],  # 4 billion transforms
+        b"\x00\x01\x00\x00" + os.urandom(64),                 # noise
+    ]
+    wrong = session.declare_publisher(
+        f"{args.domain}/tf/std_msgs::msg::dds_::String_/{STORE.hash_rihs01('std_msgs/msg/String')}")
+    n = 0
+    while True:
+        pub.put(msgs[n % len(msgs)])
+        if n % 50 == 0:
+            for h in hostile:
+                pub.put(h)
+            wrong.put(bytes(STORE.serialize_cdr(STORE.types["std_msgs/msg/String"](data="x"),
+                                                "std_msgs/msg/String")))
+        n += 1
+        time.sleep(0.01)
 
 
 def write_msg_files(root, types):
@@ -182,6 +238,8 @@ def main():
     p.add_argument("--domain", type=int, default=0)
     p.add_argument("--topic", default="/dynslam/odometry")
     p.add_argument("--msgs", help="sdk: where to write the message definitions")
+    p.add_argument("--publish-odom", metavar="RGB_TXT",
+                   help="listen: also publish odom -> base_link at these frames' stamps")
     p.add_argument("--seconds", type=float, default=300)
     p.add_argument("--out", required=True)
     args = p.parse_args()

@@ -6,11 +6,13 @@
 //! - [`rmw`]: rmw_zenoh's key expressions, liveliness tokens and attachments;
 //! - [`frames`]: REP-103 / REP-105 frames from the SLAM's camera poses;
 //! - [`node`]: a ROS 2 node on a Zenoh session;
+//! - [`odom`]: the robot's `odom -> base_link` from `/tf` (REP-105);
 //! - [`outputs`]: what is published when, and what survives a restart.
 
 pub mod cdr;
 pub mod frames;
 pub mod msgs;
 pub mod node;
+pub mod odom;
 pub mod outputs;
 pub mod rmw;

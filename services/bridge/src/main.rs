@@ -45,6 +45,12 @@ fn serve(ctx: ServiceContext, run_dir: &std::path::Path) -> Result<()> {
     let tracks = ctx.transport.receiver::<Track>(Topic::Tracks)?;
     let mut node = RosNode::open(cfg)?;
     let mut outputs = Outputs::new(&mut node, cfg, run_dir)?;
+    // The robot's odom -> base arrives on tf (REP-105).
+    let tf_in = if cfg.odom_frame.is_empty() {
+        None
+    } else {
+        Some(node.subscriber(&cfg.tf_topic)?)
+    };
     let ws = waitset()?;
     let _p = attach(&ws, &poses)?;
     let _t = attach(&ws, &tracks)?;
@@ -66,6 +72,11 @@ fn serve(ctx: ServiceContext, run_dir: &std::path::Path) -> Result<()> {
         tracks.clear_wakeups();
         while let Some(t) = tracks.next()? {
             outputs.on_track(&t);
+        }
+        if let Some(tf) = &tf_in {
+            while let Some((dds, payload)) = tf.next() {
+                outputs.on_tf_sample(&dds, &payload);
+            }
         }
         poses.clear_wakeups();
         while let Some(p) = poses.next()? {

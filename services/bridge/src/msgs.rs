@@ -295,6 +295,59 @@ mod tests {
         assert_eq!(Time::from_secs(1.9999999999).nanosec, 0);
     }
 
+    /// Fuzz: mutated and random messages are read or refused, never a
+    /// panic nor an allocation beyond the message (xorshift, fixed seed).
+    #[test]
+    fn the_tf_reader_survives_mutated_and_random_input() {
+        let t = TransformStamped {
+            header: Header {
+                stamp: Time { sec: 1, nanosec: 2 },
+                frame_id: "odom".into(),
+            },
+            child_frame_id: "base_link".into(),
+            transform: RosPose::default(),
+        };
+        let valid = tf_message(&[t.clone(), t.clone(), t]);
+        let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+        let mut next = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        let (mut read, mut refused) = (0, 0);
+        for i in 0..200_000 {
+            let mut m = if i % 4 == 0 {
+                (0..next() % 200).map(|_| next() as u8).collect::<Vec<u8>>()
+            } else {
+                valid.clone()
+            };
+            for _ in 0..1 + next() % 4 {
+                if m.is_empty() {
+                    break;
+                }
+                let at = (next() as usize) % m.len();
+                match next() % 4 {
+                    0 => m[at] = next() as u8,
+                    1 => m.truncate(at),
+                    2 => m[at..].iter_mut().take(4).for_each(|b| *b = 0xFF),
+                    _ => m.insert(at, next() as u8),
+                }
+            }
+            match read_tf_message(&m) {
+                Ok(v) => {
+                    assert!(v.len() * MIN_TRANSFORM_BYTES <= m.len());
+                    read += 1
+                }
+                Err(_) => refused += 1,
+            }
+        }
+        assert!(
+            read > 1000 && refused > 1000,
+            "{read} read, {refused} refused"
+        );
+    }
+
     #[test]
     fn tf_messages_read_back_what_was_written() {
         let t = TransformStamped {

@@ -3,9 +3,11 @@
 
 use anyhow::{anyhow, Context, Result};
 use pipeline::config::BridgeConfig;
+use zenoh::handlers::{RingChannel, RingChannelHandler};
 use zenoh::liveliness::LivelinessToken;
-use zenoh::pubsub::Publisher;
+use zenoh::pubsub::{Publisher, Subscriber};
 use zenoh::qos::CongestionControl;
+use zenoh::sample::Sample;
 use zenoh::{Session, Wait};
 
 use crate::msgs::MsgType;
@@ -42,6 +44,10 @@ pub fn session_config(cfg: &BridgeConfig) -> Result<zenoh::Config> {
     }
     Ok(c)
 }
+
+/// Samples a subscriber queues between two looks (the bridge looks every
+/// 50 ms at most).
+const SUBSCRIBER_QUEUE: usize = 4096;
 
 /// One node of the ROS 2 graph.
 pub struct RosNode {
@@ -84,6 +90,26 @@ impl RosNode {
     /// Routers this session is connected to (none: no ROS 2 node can see us).
     pub fn routers(&self) -> usize {
         self.session.info().routers_zid().wait().count()
+    }
+
+    /// A subscriber to every type on `topic` (the type is checked per
+    /// sample: a sample of another type is the network's mistake to count).
+    pub fn subscriber(&self, topic: &str) -> Result<TopicSubscriber> {
+        let fq = rmw::resolve(&self.info.namespace, topic);
+        let key = format!("{}/{}/**", self.info.domain, fq.trim_start_matches('/'));
+        let subscriber = self
+            .session
+            .declare_subscriber(key.clone())
+            // Never blocks Zenoh: a flood drops the oldest samples.
+            .with(RingChannel::new(SUBSCRIBER_QUEUE))
+            .wait()
+            .map_err(|e| anyhow!("cannot subscribe to {fq} ({key}): {e}"))?;
+        let depth = fq.trim_start_matches('/').split('/').count() + 1;
+        Ok(TopicSubscriber {
+            topic: fq,
+            depth,
+            subscriber,
+        })
     }
 
     /// A publisher on `topic` (resolved under the node's namespace).
@@ -147,5 +173,28 @@ impl RosPublisher {
             .attachment(attachment)
             .wait()
             .map_err(|e| anyhow!("cannot publish on {}: {e}", self.topic))
+    }
+}
+
+/// Samples of one topic, as they came.
+pub struct TopicSubscriber {
+    pub topic: String,
+    /// Key parts before the type: the domain and the topic's parts.
+    depth: usize,
+    subscriber: Subscriber<RingChannelHandler<Sample>>,
+}
+
+impl TopicSubscriber {
+    /// The next sample that arrived: the DDS type named by its key ("" when
+    /// the key has no type and hash after the topic) and its payload.
+    pub fn next(&self) -> Option<(String, Vec<u8>)> {
+        let sample = self.subscriber.try_recv().ok()??;
+        let parts: Vec<&str> = sample.key_expr().as_str().split('/').collect();
+        let dds = if parts.len() == self.depth + 2 {
+            parts[self.depth].to_string()
+        } else {
+            String::new()
+        };
+        Some((dds, sample.payload().to_bytes().into_owned()))
     }
 }

@@ -24,6 +24,7 @@ use crate::msgs::{
     self, level, DiagnosticStatus, Header, Odometry, RosPose, Time, TransformStamped,
 };
 use crate::node::{RosNode, RosPublisher};
+use crate::odom::OdomBuffer;
 use crate::rmw::Durability;
 
 /// The bridge's record in the run folder.
@@ -88,6 +89,13 @@ pub struct Outputs {
     last_track: Option<Track>,
     window: Window,
     path_dirty: bool,
+    /// The robot's `odom -> base` (bridge.odom_frame set).
+    odom: Option<OdomBuffer>,
+    /// Tracked frames for which the robot's odometry was not known: no
+    /// `map -> odom` was published for them.
+    pub without_odom: u64,
+    without_odom_reported: u64,
+    refused_reported: String,
     next_path: Instant,
     next_diagnostics: Instant,
     /// Samples dropped because they made no sense (counted, warned once a period).
@@ -151,6 +159,11 @@ impl Outputs {
             last_track: None,
             window: Window::default(),
             path_dirty: false,
+            odom: (!cfg.odom_frame.is_empty())
+                .then(|| OdomBuffer::new(&cfg.odom_frame, &cfg.base_frame)),
+            without_odom: 0,
+            without_odom_reported: 0,
+            refused_reported: "0".into(),
             next_path: now,
             next_diagnostics: now,
             refused: 0,
@@ -242,12 +255,29 @@ impl Outputs {
             twist_covariance: diagonal(twist_var),
         };
         self.odometry.publish(msgs::odometry(&odometry))?;
-        let tf = TransformStamped {
-            header: self.header(stamp, &self.cfg.map_frame),
-            child_frame_id: self.cfg.base_frame.clone(),
-            transform: pose,
+        // REP-105: with the robot's own odometry, the SLAM's transform is
+        // the drift correction map -> odom; else map -> base.
+        let tf = match &self.odom {
+            None => Some((self.cfg.base_frame.clone(), pose)),
+            Some(odom) => match odom.at(stamp) {
+                Some(odom_t_base) => Some((
+                    self.cfg.odom_frame.clone(),
+                    frames::to_ros(&(map_t_base * odom_t_base.inverse())),
+                )),
+                None => {
+                    self.without_odom += 1;
+                    None
+                }
+            },
         };
-        self.tf.publish(msgs::tf_message(&[tf]))?;
+        if let Some((child_frame_id, transform)) = tf {
+            let tf = TransformStamped {
+                header: self.header(stamp, &self.cfg.map_frame),
+                child_frame_id,
+                transform,
+            };
+            self.tf.publish(msgs::tf_message(&[tf]))?;
+        }
         let keyframe = p.keyframe != 0;
         writeln!(
             self.path_file,
@@ -273,6 +303,30 @@ impl Outputs {
                 .publish(msgs::pose_array(&h, &self.keyframe_poses))?;
         }
         Ok(())
+    }
+
+    /// A sample on the tf topic (only with `odom_frame`).
+    pub fn on_tf_sample(&mut self, dds_type: &str, payload: &[u8]) {
+        if let Some(odom) = &mut self.odom {
+            odom.on_sample(dds_type, payload);
+        }
+    }
+
+    /// Samples dropped from the network, by reason, in words.
+    fn refused_messages(&self) -> String {
+        let Some(odom) = &self.odom else {
+            return "0".into();
+        };
+        let total: u64 = odom.refused.values().sum();
+        if total == 0 {
+            return "0".into();
+        }
+        let why: Vec<String> = odom
+            .refused
+            .iter()
+            .map(|(r, n)| format!("{n} {}", r.as_str()))
+            .collect();
+        format!("{total} ({})", why.join(", "))
     }
 
     /// A Track: its latency and counts for the diagnostics.
@@ -309,6 +363,23 @@ impl Outputs {
                     refused = self.refused,
                     "poses without a usable state or rotation were not published"
                 );
+            }
+            let refused = self.refused_messages();
+            if refused != "0" && refused != self.refused_reported {
+                tracing::warn!("samples on {} dropped so far: {refused}", self.tf.topic);
+                self.refused_reported = refused;
+            }
+            if self.without_odom > self.without_odom_reported {
+                tracing::warn!(
+                    "{} tracked frames had no {} -> {} on {} at their capture time: no {} -> {} published for them",
+                    self.without_odom,
+                    self.cfg.odom_frame,
+                    self.cfg.base_frame,
+                    self.tf.topic,
+                    self.cfg.map_frame,
+                    self.cfg.odom_frame
+                );
+                self.without_odom_reported = self.without_odom;
             }
             self.window = Window::default();
             self.save_state()?;
@@ -373,6 +444,8 @@ impl Outputs {
                 ("keyframes".into(), counts.keyframes.to_string()),
                 ("map_points".into(), counts.map_points.to_string()),
                 ("inliers".into(), counts.inliers.to_string()),
+                ("refused_messages".into(), self.refused_messages()),
+                ("frames_without_odom".into(), self.without_odom.to_string()),
             ],
         }];
         out.extend(self.service_status());

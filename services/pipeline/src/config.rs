@@ -61,6 +61,10 @@ pub struct BridgeConfig {
     /// world frame (the first camera's optical axes: z forward, y down).
     pub world_frame: String,
     pub map_frame: String,
+    /// The robot's odometry frame when it publishes `odom -> base_frame`
+    /// on tf: the SLAM then publishes `map -> odom` (REP-105); empty: the
+    /// SLAM publishes `map -> base_frame`.
+    pub odom_frame: String,
     pub base_frame: String,
     pub camera_frame: String,
     /// The camera's mounting, base_frame -> camera_frame (metres, and
@@ -94,6 +98,7 @@ impl Default for BridgeConfig {
             node_name: "dynslam".into(),
             world_frame: "ros".into(),
             map_frame: "map".into(),
+            odom_frame: String::new(),
             base_frame: "base_link".into(),
             camera_frame: "camera_optical_frame".into(),
             camera_xyz: [0.0; 3],
@@ -155,6 +160,9 @@ impl BridgeConfig {
             ("bridge.camera_frame", &self.camera_frame),
         ] {
             ros_name(key, frame, true)?;
+        }
+        if !self.odom_frame.is_empty() {
+            ros_name("bridge.odom_frame", &self.odom_frame, true)?;
         }
         for (key, topic) in [
             ("bridge.odometry_topic", &self.odometry_topic),

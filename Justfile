@@ -160,6 +160,20 @@ bench-realtime-people *args="": build setup synth-people
     ./target/release/realtime-bench "{{people_front}}" --out bench-results/realtime_people_across.json {{args}}
     ./target/release/realtime-bench "{{people_mixed_front}}" --out bench-results/realtime_people_mixed.json {{args}}
 
+# Real time with the ROS 2 bridge off and on, alternated in one invocation (30 fps, unloaded and with 2 busy processes; a subscriber on a local Zenoh router counts what arrives; writes bench-results/realtime_bridge.json).
+bench-realtime-bridge *args="": build setup ros2py
+    #!/usr/bin/env bash
+    set -euo pipefail
+    mkdir -p bench-results
+    port=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+    # The router runs until its stdin (a FIFO held open here) closes, then writes what it counted.
+    fifo=$(mktemp -u) && mkfifo "$fifo"
+    .cache/ros2-venv/bin/python tests/ros2/client.py listen --count-only --endpoint "tcp/127.0.0.1:$port" --out bench-results/realtime_bridge_received.json < "$fifo" > /dev/null &
+    exec 3> "$fifo" && rm "$fifo"
+    trap 'exec 3>&-; wait' EXIT
+    sleep 2
+    ./target/release/realtime-bench --only 30:0,30:2 --bridge "tcp/127.0.0.1:$port" --out bench-results/realtime_bridge.json {{args}}
+
 # Real-time soak of MINUTES on the shared sequence played over and over (a separate `dynslam run`): RSS per process and the map's size per minute; fails when a non-SLAM process grows > 10 MB after minute 1 (writes bench-results/soak.json).
 soak minutes="10" *args="": build setup
     ./target/release/soak --minutes {{minutes}} {{args}}

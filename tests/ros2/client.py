@@ -95,6 +95,10 @@ def listen(args):
 
     def on_sample(s):
         key = str(s.key_expr)
+        if args.count_only:
+            with lock:
+                record["samples"][key] = record["samples"].get(key, 0) + 1
+            return
         parts = key.split("/")
         try:
             dds, hsh = parts[-2], parts[-1]
@@ -240,6 +244,8 @@ def main():
     p.add_argument("--msgs", help="sdk: where to write the message definitions")
     p.add_argument("--publish-odom", metavar="RGB_TXT",
                    help="listen: also publish odom -> base_link at these frames' stamps")
+    p.add_argument("--count-only", action="store_true",
+                   help="listen: count samples per key, decode nothing (benchmarks)")
     p.add_argument("--seconds", type=float, default=300)
     p.add_argument("--out", required=True)
     args = p.parse_args()

@@ -10,7 +10,11 @@
 //! every run's
 //! figures go to `bench-results/realtime.json`.
 //!
-//! `realtime-bench [DATASET] [--runs N] [--load N] [--only 30:0,60:2] [--no-lockstep] [--out FILE]`
+//! With `--bridge ENDPOINT` every run is made twice, the ROS 2 bridge off
+//! and on (publishing to the Zenoh router at ENDPOINT), the two alternated
+//! so that both see the same machine (`just bench-realtime-bridge`).
+//!
+//! `realtime-bench [DATASET] [--runs N] [--load N] [--only 30:0,60:2] [--no-lockstep] [--bridge ENDPOINT] [--out FILE]`
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -52,6 +56,11 @@ struct Args {
     /// Skip the lockstep reference run (no lockstep ATE in the table).
     #[arg(long)]
     no_lockstep: bool,
+    /// Each run also with the ROS 2 bridge on, connected to the Zenoh
+    /// router at this endpoint (`tcp/127.0.0.1:7447`), alternated with the
+    /// bridge off.
+    #[arg(long)]
+    bridge: Option<String>,
     /// Internal: be a busy process pinned to this core (the load).
     #[arg(long, hide = true)]
     burn: Option<usize>,
@@ -62,6 +71,8 @@ struct Args {
 struct RunFigures {
     fps_in: f64,
     busy_processes: usize,
+    /// The ROS 2 bridge ran (`--bridge`).
+    bridge: bool,
     frames: usize,
     tracked: usize,
     /// Tracked frames per second of stream time.
@@ -140,24 +151,39 @@ fn main() -> Result<()> {
     for &(fps_in, load) in &conditions {
         let (fps, speed) = (f64::from(fps_in), f64::from(fps_in) / 30.0);
         for i in 0..args.runs {
-            let burners = start_load(load)?;
-            let id = format!("rtb-{batch}-{fps}fps-load{load}-{i}");
-            let result = run_once(&base, &dataset, &args.output_dir, &id, |c| {
-                c.run.mode = ClockMode::Realtime;
-                c.run.speed = speed;
-            });
-            stop_load(burners);
-            let mut f = result?;
-            f.fps_in = fps;
-            f.busy_processes = load;
-            eprintln!(
-                "{fps} fps, {load} busy: {:.1} tracked fps, {:.1} % dropped, e2e p99 {}, ATE {}",
-                f.tracked_fps,
-                f.dropped_pct,
-                fmt_ms(f.end_to_end_p99_ms),
-                fmt_m(f.ate_rmse_m)
-            );
-            runs.push(f);
+            // Bridge off and on alternate which goes first.
+            let arms = match (&args.bridge, i % 2) {
+                (None, _) => vec![None],
+                (Some(e), 0) => vec![None, Some(e.clone())],
+                (Some(e), _) => vec![Some(e.clone()), None],
+            };
+            for bridge in arms {
+                let burners = start_load(load)?;
+                let on = bridge.is_some();
+                let id = format!("rtb-{batch}-{fps}fps-load{load}-{i}{}", if on { "-br" } else { "" });
+                let result = run_once(&base, &dataset, &args.output_dir, &id, |c| {
+                    c.run.mode = ClockMode::Realtime;
+                    c.run.speed = speed;
+                    if let Some(endpoint) = bridge {
+                        c.bridge.enabled = true;
+                        c.bridge.connect = vec![endpoint];
+                    }
+                });
+                stop_load(burners);
+                let mut f = result?;
+                f.fps_in = fps;
+                f.busy_processes = load;
+                f.bridge = on;
+                eprintln!(
+                    "{fps} fps, {load} busy{}: {:.1} tracked fps, {:.1} % dropped, e2e p99 {}, ATE {}",
+                    if on { ", bridge on" } else { "" },
+                    f.tracked_fps,
+                    f.dropped_pct,
+                    fmt_ms(f.end_to_end_p99_ms),
+                    fmt_m(f.ate_rmse_m)
+                );
+                runs.push(f);
+            }
         }
     }
     println!(
@@ -166,9 +192,10 @@ fn main() -> Result<()> {
         args.runs
     );
     println!(
-        "{:>6} {:>5} {:>18} {:>9} {:>10} {:>10} {:>8} {:>9} {:>14} {:>22}",
+        "{:>6} {:>5} {:>6} {:>18} {:>9} {:>10} {:>10} {:>8} {:>9} {:>14} {:>22}",
         "fps in",
         "busy",
+        "bridge",
         "tracked fps",
         "dropped",
         "e2e p50",
@@ -178,11 +205,19 @@ fn main() -> Result<()> {
         "kf (lockstep)",
         "ATE (lockstep)"
     );
-    for &(fps_in, load) in &conditions {
+    let arms: &[bool] = if args.bridge.is_some() {
+        &[false, true]
+    } else {
+        &[false]
+    };
+    for (&(fps_in, load), &bridge) in conditions
+        .iter()
+        .flat_map(|c| arms.iter().map(move |b| (c, b)))
+    {
         let fps = f64::from(fps_in);
         let group: Vec<&RunFigures> = runs
             .iter()
-            .filter(|r| r.fps_in == fps && r.busy_processes == load)
+            .filter(|r| r.fps_in == fps && r.busy_processes == load && r.bridge == bridge)
             .collect();
         let med = |f: &dyn Fn(&RunFigures) -> Option<f64>| {
             let mut v: Vec<f64> = group.iter().filter_map(|r| f(r)).collect();
@@ -194,9 +229,10 @@ fn main() -> Result<()> {
             .map(|r| r.tracked_fps)
             .fold(f64::INFINITY, f64::min);
         println!(
-            "{:>6} {:>5} {:>10.1} ({:>5.1}) {:>8.1}% {:>10} {:>10} {:>7.0}% {:>8.0}% {:>6.0} ({:>5}) {:>10} ({})",
+            "{:>6} {:>5} {:>6} {:>10.1} ({:>5.1}) {:>8.1}% {:>10} {:>10} {:>7.0}% {:>8.0}% {:>6.0} ({:>5}) {:>10} ({})",
             fps,
             load,
+            if bridge { "on" } else { "off" },
             med(&|r| Some(r.tracked_fps)).unwrap_or(0.0),
             worst_fps,
             med(&|r| Some(r.dropped_pct)).unwrap_or(0.0),
@@ -274,6 +310,7 @@ fn figures(rows: &[FrameRow], speed: f64, run_dir: PathBuf) -> RunFigures {
     RunFigures {
         fps_in: 0.0,
         busy_processes: 0,
+        bridge: false,
         frames: rows.len(),
         tracked: tracked.len(),
         tracked_fps: tracked.len() as f64 / seconds,

@@ -85,15 +85,15 @@ pyiceoryx2:
         "$venv/bin/pip" install --quiet --disable-pip-version-check iceoryx2==0.10.0 pillow==13.0.0
     fi
 
-# ROS 2 clients we did not write (PyPI, pinned) in the repo's ignored .cache, for the ROS 2 bridge's tests: eclipse-zenoh (a Zenoh router and subscriber), rosbags (CDR and RIHS01 from its Jazzy type store), zenoh-ros2-sdk (a ROS 2 node on rmw_zenoh's conventions).
+# ROS 2 clients we did not write (PyPI, pinned) in the repo's ignored .cache, for the ROS 2 bridge's tests: eclipse-zenoh (a Zenoh router and subscriber), rosbags (CDR and RIHS01 from its Jazzy type store), zenoh-ros2-sdk (a ROS 2 node on rmw_zenoh's conventions), Pillow (the camera player reads the PNGs).
 ros2py:
     #!/usr/bin/env bash
     set -euo pipefail
     venv=.cache/ros2-venv
-    if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c 'import zenoh, rosbags, zenoh_ros2_sdk' 2>/dev/null; then
-        echo "installing eclipse-zenoh 1.10.2, rosbags 0.11.9 and zenoh-ros2-sdk 0.1.8 (Python) into $venv (once)"
+    if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c 'import zenoh, rosbags, zenoh_ros2_sdk, PIL' 2>/dev/null; then
+        echo "installing eclipse-zenoh 1.10.2, rosbags 0.11.9, zenoh-ros2-sdk 0.1.8 and Pillow 13.0.0 (Python) into $venv (once)"
         python3 -m venv "$venv"
-        "$venv/bin/pip" install --quiet --disable-pip-version-check eclipse-zenoh==1.10.2 rosbags==0.11.9 zenoh-ros2-sdk==0.1.8
+        "$venv/bin/pip" install --quiet --disable-pip-version-check eclipse-zenoh==1.10.2 rosbags==0.11.9 zenoh-ros2-sdk==0.1.8 pillow==13.0.0
     fi
 
 # Test images that registry packages ship (not committed: their licences are not ours), into .cache/fixtures.

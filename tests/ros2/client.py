@@ -188,6 +188,96 @@ def publish_odom(session, args):
         time.sleep(0.01)
 
 
+TUM_FR1 = {"k": [517.306408, 0.0, 318.643040, 0.0, 516.469215, 255.313989, 0.0, 0.0, 1.0],
+           "d": [0.262383, -0.953104, -0.005358, 0.002628, 1.163314]}
+
+
+def play(args):
+    """A ROS 2 camera driver (rosbags serialising): the router, a CameraInfo
+    every 0.2 s, and the TUM folder's frames as rgb8 Image + 32FC1 depth
+    (metres, exact) at --fps once the colour topic has a subscriber; then
+    waits for stdin to close. Records what it published."""
+    import numpy as np
+    from PIL import Image as PILImage
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"router"')
+    conf.insert_json5("listen/endpoints", json.dumps([args.endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(conf)
+    T = STORE.types
+    Header, Time = T["std_msgs/msg/Header"], T["builtin_interfaces/msg/Time"]
+    Image, CameraInfo = T["sensor_msgs/msg/Image"], T["sensor_msgs/msg/CameraInfo"]
+    ROI = T["sensor_msgs/msg/RegionOfInterest"]
+
+    def key(topic, typ):
+        return f"{args.domain}/{topic}/{typ.replace('/msg/', '::msg::dds_::')}_/{STORE.hash_rihs01(typ)}"
+
+    def header(t, frame="camera_color_optical_frame"):
+        sec = int(t)
+        return Header(stamp=Time(sec=sec, nanosec=int(round((t - sec) * 1e9))), frame_id=frame)
+
+    colour = session.declare_publisher(key("camera/color/image_raw", "sensor_msgs/msg/Image"))
+    depth = session.declare_publisher(key("camera/aligned_depth_to_color/image_raw", "sensor_msgs/msg/Image"))
+    info = session.declare_publisher(key("camera/color/camera_info", "sensor_msgs/msg/CameraInfo"))
+    frames = []
+    for line in open(os.path.join(args.tum, "associations.txt")):
+        if line.startswith("#") or not line.strip():
+            continue
+        t_rgb, rgb, t_d, d = line.split()[:4]
+        frames.append((float(t_rgb), rgb, float(t_d), d))
+    frames = frames[: args.limit]
+    decoded = []
+    for t_rgb, rgb, t_d, d in frames:
+        c = np.asarray(PILImage.open(os.path.join(args.tum, rgb)).convert("RGB"))
+        z = np.asarray(PILImage.open(os.path.join(args.tum, d))).astype(np.uint32)
+        metres = (z / 5000.0).astype(np.float32)  # TUM: 5000 a metre; 0 is no depth
+        decoded.append((t_rgb, c, t_d, metres))
+
+    def camera_info():
+        h, w = decoded[0][1].shape[:2]
+        return bytes(STORE.serialize_cdr(CameraInfo(
+            header=header(frames[0][0]), height=h, width=w, distortion_model="plumb_bob",
+            d=np.array(TUM_FR1["d"], dtype=np.float64), k=np.array(TUM_FR1["k"], dtype=np.float64),
+            r=np.eye(3).flatten(), p=np.zeros(12), binning_x=0, binning_y=0,
+            roi=ROI(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)),
+            "sensor_msgs/msg/CameraInfo"))
+
+    info_bytes = camera_info()
+    stop = threading.Event()
+
+    def keep_info():
+        while not stop.is_set():
+            info.put(info_bytes)
+            time.sleep(0.2)
+
+    threading.Thread(target=keep_info, daemon=True).start()
+    print("ready", flush=True)
+    # The frames start once the run's camera listens (and a moment more).
+    while not colour.matching_status.matching:
+        time.sleep(0.05)
+    time.sleep(1.0)
+    published = []
+    period = 1.0 / args.fps
+    start = time.time()
+    for i, (t_rgb, c, t_d, mm) in enumerate(decoded):
+        h, w = c.shape[:2]
+        img = Image(header=header(t_rgb), height=h, width=w, encoding="rgb8", is_bigendian=0,
+                    step=w * 3, data=c.reshape(-1))
+        dep = Image(header=header(t_d), height=h, width=w, encoding="32FC1", is_bigendian=0,
+                    step=w * 4, data=mm.reshape(-1).view(np.uint8))
+        depth.put(bytes(STORE.serialize_cdr(dep, "sensor_msgs/msg/Image")))
+        colour.put(bytes(STORE.serialize_cdr(img, "sensor_msgs/msg/Image")))
+        published.append(t_rgb)
+        delay = start + (i + 1) * period - time.time()
+        if delay > 0:
+            time.sleep(delay)
+    wait_for_end(args.seconds)
+    stop.set()
+    with open(args.out, "w") as f:
+        json.dump({"published": published}, f)
+    os._exit(0)
+
+
 def write_msg_files(root, types):
     """One .msg file a type and its dependencies, from rosbags' Jazzy store."""
     for typ in types:
@@ -236,7 +326,10 @@ def sdk(args):
 
 def main():
     p = argparse.ArgumentParser()
-    p.add_argument("mode", choices=["listen", "sdk"])
+    p.add_argument("mode", choices=["listen", "sdk", "play"])
+    p.add_argument("--tum", help="play: the TUM folder to play")
+    p.add_argument("--limit", type=int, default=300, help="play: frames")
+    p.add_argument("--fps", type=float, default=15.0, help="play: frames a second")
     p.add_argument("--endpoint", default="tcp/127.0.0.1:7447")
     p.add_argument("--config", help="a Zenoh JSON5 config for the router (TLS)")
     p.add_argument("--domain", type=int, default=0)
@@ -249,7 +342,7 @@ def main():
     p.add_argument("--seconds", type=float, default=300)
     p.add_argument("--out", required=True)
     args = p.parse_args()
-    listen(args) if args.mode == "listen" else sdk(args)
+    {"listen": listen, "sdk": sdk, "play": play}[args.mode](args)
 
 
 if __name__ == "__main__":

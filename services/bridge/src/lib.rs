@@ -7,8 +7,10 @@
 //! - [`frames`]: REP-103 / REP-105 frames from the SLAM's camera poses;
 //! - [`node`]: a ROS 2 node on a Zenoh session;
 //! - [`odom`]: the robot's `odom -> base_link` from `/tf` (REP-105);
-//! - [`outputs`]: what is published when, and what survives a restart.
+//! - [`outputs`]: what is published when, and what survives a restart;
+//! - [`camera_in`]: a ROS 2 camera's topics as the run's frames (`source.kind = "ros2"`).
 
+pub mod camera_in;
 pub mod cdr;
 pub mod frames;
 pub mod msgs;

@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 use anyhow::Result;
 use bridge::node::RosNode;
 use bridge::outputs::Outputs;
-use clap::Parser;
+use clap::{Parser, Subcommand};
 use pipeline::runtime::{run_service, ServiceArgs, ServiceContext};
 use pipeline::transport::{attach, wait, waitset, Wake};
 use shared_types::names::Topic;
@@ -19,12 +19,37 @@ use shared_types::{Pose, ServiceKind, Track};
 #[derive(Parser, Debug)]
 #[command(about = "dynslam's ROS 2 bridge (rmw_zenoh wire format)")]
 struct Args {
-    #[command(flatten)]
-    service: ServiceArgs,
-    /// The run folder: the supervisor's status.json is read for the
-    /// diagnostics, the bridge's own record is kept there.
-    #[arg(long)]
-    run_dir: PathBuf,
+    #[command(subcommand)]
+    role: Role,
+}
+
+#[derive(Subcommand, Debug)]
+enum Role {
+    /// The run as ROS 2 topics (the supervisor starts it with --ros2).
+    Publish {
+        #[command(flatten)]
+        service: ServiceArgs,
+        /// The run folder: the supervisor's status.json is read for the
+        /// diagnostics, the bridge's own record is kept there.
+        #[arg(long)]
+        run_dir: PathBuf,
+    },
+    /// A ROS 2 camera's topics as the run's frames, in the camera-reader's
+    /// place (`source.kind = "ros2"`).
+    CameraIn {
+        #[command(flatten)]
+        service: ServiceArgs,
+        /// Number of the first frame (a restarted stream goes on).
+        #[arg(long, default_value_t = 0)]
+        start_seq: u64,
+    },
+    /// Prints the `[camera]` section the configured CameraInfo topic gives
+    /// (the supervisor asks before a `source.kind = "ros2"` run starts).
+    CameraInfo {
+        /// The pipeline configuration.
+        #[arg(long)]
+        config: PathBuf,
+    },
 }
 
 /// How long the bridge sleeps at most between its periodic publications.
@@ -33,10 +58,36 @@ const TICK: Duration = Duration::from_millis(50);
 const ROUTER_WARNING_AFTER: Duration = Duration::from_secs(3);
 
 fn main() -> ExitCode {
-    let args = Args::parse();
-    run_service(ServiceKind::Bridge, &args.service, |ctx| {
-        serve(ctx, &args.run_dir)
-    })
+    match Args::parse().role {
+        Role::Publish { service, run_dir } => {
+            run_service(ServiceKind::Bridge, &service, |ctx| serve(ctx, &run_dir))
+        }
+        Role::CameraIn { service, start_seq } => {
+            run_service(ServiceKind::CameraReader, &service, |ctx| {
+                bridge::camera_in::serve(ctx, start_seq)
+            })
+        }
+        Role::CameraInfo { config } => camera_info(&config),
+    }
+}
+
+/// `bridge camera-info`: the `[camera]` section on stdout, or the reason on
+/// stderr (exit 2: a restart cannot help).
+fn camera_info(config: &std::path::Path) -> ExitCode {
+    pipeline::runtime::init_logging();
+    let result = pipeline::config::PipelineConfig::load(config)
+        .map_err(anyhow::Error::from)
+        .and_then(|c| bridge::camera_in::camera_section(&c));
+    match result {
+        Ok(section) => {
+            print!("{section}");
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(pipeline::runtime::exit_code::INPUT)
+        }
+    }
 }
 
 fn serve(ctx: ServiceContext, run_dir: &std::path::Path) -> Result<()> {

@@ -51,6 +51,22 @@ pub const STRING: MsgType = MsgType {
     hash: "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18",
 };
 
+pub const IMAGE: MsgType = MsgType {
+    ros: "sensor_msgs/msg/Image",
+    dds: "sensor_msgs::msg::dds_::Image_",
+    hash: "RIHS01_d31d41a9a4c4bc8eae9be757b0beed306564f7526c88ea6a4588fb9582527d47",
+};
+pub const COMPRESSED_IMAGE: MsgType = MsgType {
+    ros: "sensor_msgs/msg/CompressedImage",
+    dds: "sensor_msgs::msg::dds_::CompressedImage_",
+    hash: "RIHS01_15640771531571185e2efc8a100baf923961a4d15d5569652e6cb6691e8e371a",
+};
+pub const CAMERA_INFO: MsgType = MsgType {
+    ros: "sensor_msgs/msg/CameraInfo",
+    dds: "sensor_msgs::msg::dds_::CameraInfo_",
+    hash: "RIHS01_b3dfd68ff46c9d56c80fd3bd4ed22c7a4ddce8c8348f2f59c299e73118e7e275",
+};
+
 /// Every type the bridge publishes (the interop test checks each hash).
 pub const ALL_TYPES: [MsgType; 6] = [
     ODOMETRY,
@@ -224,6 +240,82 @@ pub fn read_tf_message(message: &[u8]) -> Result<Vec<TransformStamped>, CdrError
         });
     }
     Ok(out)
+}
+
+/// `sensor_msgs/Image`, its pixels borrowed from the message.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Image<'a> {
+    pub header: Header,
+    pub height: u32,
+    pub width: u32,
+    pub encoding: String,
+    pub is_bigendian: bool,
+    pub step: u32,
+    pub data: &'a [u8],
+}
+
+pub fn read_image(message: &[u8]) -> Result<Image<'_>, CdrError> {
+    let mut r = Reader::new(message)?;
+    Ok(Image {
+        header: read_header(&mut r)?,
+        height: r.u32("height")?,
+        width: r.u32("width")?,
+        encoding: r.string("encoding")?,
+        is_bigendian: r.u8("is_bigendian")? != 0,
+        step: r.u32("step")?,
+        data: r.bytes("data")?,
+    })
+}
+
+/// `sensor_msgs/CompressedImage`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CompressedImage<'a> {
+    pub header: Header,
+    pub format: String,
+    pub data: &'a [u8],
+}
+
+pub fn read_compressed_image(message: &[u8]) -> Result<CompressedImage<'_>, CdrError> {
+    let mut r = Reader::new(message)?;
+    Ok(CompressedImage {
+        header: read_header(&mut r)?,
+        format: r.string("format")?,
+        data: r.bytes("data")?,
+    })
+}
+
+/// `sensor_msgs/CameraInfo`, up to the intrinsic matrix.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraInfo {
+    pub header: Header,
+    pub height: u32,
+    pub width: u32,
+    pub distortion_model: String,
+    pub d: Vec<f64>,
+    /// Row-major 3x3 intrinsics: fx 0 cx / 0 fy cy / 0 0 1.
+    pub k: [f64; 9],
+}
+
+pub fn read_camera_info(message: &[u8]) -> Result<CameraInfo, CdrError> {
+    let mut r = Reader::new(message)?;
+    let header = read_header(&mut r)?;
+    let height = r.u32("height")?;
+    let width = r.u32("width")?;
+    let distortion_model = r.string("distortion_model")?;
+    let n = r.len("d", 8)?;
+    let d = (0..n).map(|_| r.f64("d")).collect::<Result<_, _>>()?;
+    let mut k = [0.0; 9];
+    for v in &mut k {
+        *v = r.f64("k")?;
+    }
+    Ok(CameraInfo {
+        header,
+        height,
+        width,
+        distortion_model,
+        d,
+        k,
+    })
 }
 
 /// `nav_msgs/Path`: every pose a `PoseStamped` with its own stamp.

@@ -182,6 +182,7 @@ pub fn configured_frames(
         pipeline::config::SourceKind::Images => image_folder(&src.path, src.image_period),
         pipeline::config::SourceKind::External => Err(SourceError::Live("external")),
         pipeline::config::SourceKind::V4l2 => Err(SourceError::Live("v4l2")),
+        pipeline::config::SourceKind::Ros2 => Err(SourceError::Live("ros2")),
     }?;
     if src.limit > 0 {
         frames.truncate(src.limit as usize);

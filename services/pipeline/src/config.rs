@@ -440,6 +440,9 @@ pub enum SourceKind {
     External,
     /// A live V4L2 camera (`[source.v4l2]`), real time only.
     V4l2,
+    /// A ROS 2 camera driver's topics (`[source.ros2]`) over rmw_zenoh,
+    /// through the bridge's Zenoh settings (`[bridge]`); real time only.
+    Ros2,
 }
 
 /// A V4L2 camera's settings (`source.kind = "v4l2"`).
@@ -493,6 +496,40 @@ pub struct SourceConfig {
     pub repeat: u32,
     /// `kind = "v4l2"`: the camera.
     pub v4l2: V4l2Config,
+    /// `kind = "ros2"`: the camera driver's topics.
+    pub ros2: Ros2SourceConfig,
+}
+
+/// `source.kind = "ros2"`: frames from a ROS 2 camera driver's topics
+/// (README "ROS 2"). Relative names resolve under `bridge.namespace`.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct Ros2SourceConfig {
+    /// sensor_msgs/Image (rgb8, bgr8) or sensor_msgs/CompressedImage (jpeg, png).
+    pub colour_topic: String,
+    /// sensor_msgs/Image (16UC1 millimetres, 32FC1 metres) registered to
+    /// the colour image; empty: none (services.slam.sensor = "monocular").
+    pub depth_topic: String,
+    /// sensor_msgs/CameraInfo (plumb_bob): the intrinsics, unless --camera
+    /// names them.
+    pub camera_info_topic: String,
+    /// How long the run waits for the first CameraInfo before it fails.
+    pub camera_info_timeout_s: f64,
+    /// The stream ends when no frame came for this long after the first
+    /// (a played bag ended); 0: it never ends by itself (Ctrl-C ends the run).
+    pub end_after_idle_s: f64,
+}
+
+impl Default for Ros2SourceConfig {
+    fn default() -> Self {
+        Self {
+            colour_topic: "camera/color/image_raw".into(),
+            depth_topic: "camera/aligned_depth_to_color/image_raw".into(),
+            camera_info_topic: "camera/color/camera_info".into(),
+            camera_info_timeout_s: 10.0,
+            end_after_idle_s: 0.0,
+        }
+    }
 }
 
 impl Default for SourceConfig {
@@ -506,6 +543,7 @@ impl Default for SourceConfig {
             image_period: 1.0 / 30.0,
             repeat: 1,
             v4l2: V4l2Config::default(),
+            ros2: Ros2SourceConfig::default(),
         }
     }
 }
@@ -1000,6 +1038,49 @@ impl PipelineConfig {
                      the camera's depth node"
                         .into(),
                 );
+            }
+        }
+        if self.source.kind == SourceKind::Ros2 {
+            let r = &self.source.ros2;
+            if self.run.mode != ClockMode::Realtime {
+                return Err(
+                    "key `run.mode`: `source.kind = \"ros2\"` needs run.mode = \"realtime\" (a ROS 2 camera sends at its own rate)"
+                        .into(),
+                );
+            }
+            for (key, topic) in [
+                ("source.ros2.colour_topic", &r.colour_topic),
+                ("source.ros2.camera_info_topic", &r.camera_info_topic),
+            ] {
+                ros_name(key, topic.strip_prefix('/').unwrap_or(topic), true)?;
+            }
+            if r.depth_topic.is_empty() {
+                if !self.services.slam.is_monocular() {
+                    return Err("key `source.ros2.depth_topic`: empty, and services.slam.sensor = \"rgbd\" needs depth: name the depth topic or set services.slam.sensor = \"monocular\"".into());
+                }
+            } else {
+                let t = &r.depth_topic;
+                ros_name(
+                    "source.ros2.depth_topic",
+                    t.strip_prefix('/').unwrap_or(t),
+                    true,
+                )?;
+            }
+            in_range(
+                "source.ros2.camera_info_timeout_s",
+                r.camera_info_timeout_s,
+                0.1,
+                3600.0,
+                "a time in seconds",
+            )?;
+            if r.end_after_idle_s != 0.0 {
+                in_range(
+                    "source.ros2.end_after_idle_s",
+                    r.end_after_idle_s,
+                    0.1,
+                    86_400.0,
+                    "a time in seconds (0: never)",
+                )?;
             }
         }
         if self.source.kind == SourceKind::External && self.run.mode != ClockMode::Realtime {

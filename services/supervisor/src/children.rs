@@ -6,7 +6,7 @@ use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
-use pipeline::config::{PipelineConfig, SupervisorConfig};
+use pipeline::config::{PipelineConfig, SourceKind, SupervisorConfig};
 use pipeline::runtime::exit_code;
 use shared_types::ServiceKind;
 
@@ -88,23 +88,29 @@ pub fn is_input_error(status: ExitStatus) -> bool {
 /// The program (and leading arguments) of a service: the configured
 /// `command`, or the binary of that name next to the running `dynslam`.
 pub fn service_program(config: &PipelineConfig, kind: ServiceKind) -> Result<Vec<String>> {
-    let cmd = match kind {
-        ServiceKind::Bridge => &config.bridge.command,
-        _ => &config.service(kind).command,
+    // The bridge binary has two roles: the ROS 2 outputs, and a ROS 2
+    // camera in the camera-reader's place.
+    let ros2_camera = kind == ServiceKind::CameraReader && config.source.kind == SourceKind::Ros2;
+    let (cmd, binary, role) = match kind {
+        ServiceKind::Bridge => (&config.bridge.command, "bridge", Some("publish")),
+        _ if ros2_camera => (&config.bridge.command, "bridge", Some("camera-in")),
+        _ => (&config.service(kind).command, kind.as_str(), None),
     };
     if !cmd.is_empty() {
-        return Ok(cmd.clone());
+        return Ok(cmd.iter().cloned().chain(role.map(String::from)).collect());
     }
     let exe = std::env::current_exe().context("cannot locate the running dynslam executable")?;
     let dir = exe.parent().map(Path::to_path_buf).unwrap_or_default();
-    let bin: PathBuf = dir.join(kind.as_str());
+    let bin: PathBuf = dir.join(binary);
     if !bin.is_file() {
         bail!(
             "service binary {} not found (build all services: cargo build --release --workspace)",
             bin.display()
         );
     }
-    Ok(vec![bin.to_string_lossy().into_owned()])
+    Ok(std::iter::once(bin.to_string_lossy().into_owned())
+        .chain(role.map(String::from))
+        .collect())
 }
 
 /// Starts a service process. It gets its own process group (a Ctrl-C in the

@@ -14,6 +14,7 @@ pub mod mask_record;
 pub mod outputs;
 pub mod plots;
 pub mod report;
+pub mod ros2_camera;
 pub mod routing;
 pub mod run;
 pub mod run_dir;

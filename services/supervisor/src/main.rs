@@ -364,6 +364,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             let live = match cfg.source.kind {
                 pipeline::config::SourceKind::External => Some("external"),
                 pipeline::config::SourceKind::V4l2 => Some("v4l2"),
+                pipeline::config::SourceKind::Ros2 => Some("ros2"),
                 _ => None,
             };
             if let (Some(kind), false) = (live, cfg.source.path.as_os_str().is_empty()) {
@@ -414,6 +415,10 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                 // Caught here, before any process starts, not as a degraded run.
                 segmenter::coco::dynamic_classes(&cfg.services.segmenter.classes, "segmenter")
                     .map_err(anyhow::Error::msg)?;
+            }
+            if cfg.source.kind == pipeline::config::SourceKind::Ros2 && camera.is_none() {
+                // A ROS 2 camera says its intrinsics on its CameraInfo topic.
+                cfg.camera = supervisor::ros2_camera::camera_info(&cfg)?;
             }
             let choice =
                 pipeline::cameras::choose(camera.as_deref(), &cfg.source.path, &cfg.camera)

@@ -160,7 +160,10 @@ fn main() -> Result<()> {
             for bridge in arms {
                 let burners = start_load(load)?;
                 let on = bridge.is_some();
-                let id = format!("rtb-{batch}-{fps}fps-load{load}-{i}{}", if on { "-br" } else { "" });
+                let id = format!(
+                    "rtb-{batch}-{fps}fps-load{load}-{i}{}",
+                    if on { "-br" } else { "" }
+                );
                 let result = run_once(&base, &dataset, &args.output_dir, &id, |c| {
                     c.run.mode = ClockMode::Realtime;
                     c.run.speed = speed;

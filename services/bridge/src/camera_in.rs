@@ -247,11 +247,13 @@ pub fn camera_section(config: &PipelineConfig) -> Result<String> {
                 }
                 d
             }
-            other => return Err(InputError(format!(
+            other => {
+                return Err(InputError(format!(
                 "{}: distortion model \"{other}\" is not plumb_bob; give the camera with --camera",
                 info.topic
             ))
-            .into()),
+                .into())
+            }
         };
         let k = ci.k;
         tracing::info!(
@@ -354,7 +356,7 @@ pub fn serve(ctx: ServiceContext, start_seq: u64) -> Result<()> {
                 stream.on_depth(d, &dds, &payload)?;
             }
         }
-        if stream.pair(depth.is_some(), depth.as_ref().unwrap_or(&colour))? {
+        if stream.pair(depth.is_some())? {
             last_frame = Some(Instant::now());
         }
         if !got {
@@ -466,7 +468,7 @@ impl Stream<'_> {
 
     /// Publishes the newest colour image that has its depth (or every
     /// colour image without depth); older colour images are left out.
-    fn pair(&mut self, with_depth: bool, depth_sub: &TopicSubscriber) -> Result<bool> {
+    fn pair(&mut self, with_depth: bool) -> Result<bool> {
         let tolerance = (self.cfg.source.max_time_diff * 1e9) as i64;
         let mut chosen = None;
         for (i, (rgb, _)) in self.colours.iter().enumerate().rev() {
@@ -487,10 +489,14 @@ impl Stream<'_> {
         let Some((i, j)) = chosen else {
             return Ok(false);
         };
+        // Older colour images are left out, newest wins; they are frames of
+        // the run all the same, recorded as dropped.
         for _ in 0..i {
-            self.colours.pop_front();
-            self.dropped
-                .add(&depth_sub.topic, "a newer colour image was paired first");
+            let (old, arrived) = self.colours.pop_front().expect("older than chosen");
+            let mut header = self.header(&old, false, arrived);
+            header.flags |= frame_flags::DROPPED_AT_SOURCE;
+            publish_header(&self.sender, header)?;
+            self.seq += 1;
         }
         let (rgb, arrived) = self.colours.pop_front().expect("chosen");
         let depth = j.map(|j| {
@@ -502,18 +508,23 @@ impl Stream<'_> {
         Ok(true)
     }
 
-    fn publish(&mut self, rgb: Rgb, depth: Option<Depth>, arrived: u64) -> Result<()> {
+    fn header(&self, rgb: &Rgb, has_depth: bool, arrived: u64) -> FrameHeader {
         let mut header = FrameHeader {
             seq: self.seq,
             source_timestamp: rgb.stamp.as_secs(),
             width: rgb.width,
             height: rgb.height,
             pixel_format: PixelFormat::Rgb8 as u32,
-            has_depth: depth.is_some() as u32,
+            has_depth: has_depth as u32,
             depth_scale: self.cfg.source.depth_scale,
             ..Default::default()
         };
         header.stamps.capture_ns = arrived;
+        header
+    }
+
+    fn publish(&mut self, rgb: Rgb, depth: Option<Depth>, arrived: u64) -> Result<()> {
+        let mut header = self.header(&rgb, depth.is_some(), arrived);
         if self.backlog.full() {
             header.flags |= frame_flags::DROPPED_AT_SOURCE;
             header.has_depth = 0;

@@ -189,7 +189,7 @@ fn ros2_clients_we_did_not_write_get_every_tracked_pose_of_a_real_run() {
     );
     // The product's defaults (real models, lockstep), the bridge pointed at
     // the test's router.
-    let toml = format!("[bridge]\nconnect = [\"{endpoint}\"]\n");
+    let toml = format!("[bridge]\nconnect = [\"{endpoint}\"]\nmask_image = true\n");
     let run = bridge_run(&dir, &toml, "ros2", 90);
     let sdk = sdk.finish();
     let got = router.finish();
@@ -208,6 +208,7 @@ fn ros2_clients_we_did_not_write_get_every_tracked_pose_of_a_real_run() {
         "geometry_msgs/msg/PoseArray",
         "diagnostic_msgs/msg/DiagnosticArray",
         "std_msgs/msg/String",
+        "sensor_msgs/msg/Image",
     ] {
         let h = &hashes[ty];
         assert_eq!(h["key"], h["rosbags"], "{ty}: {h}");
@@ -267,6 +268,28 @@ fn ros2_clients_we_did_not_write_get_every_tracked_pose_of_a_real_run() {
         assert!(names.contains(&want), "{want} not in {names:?}");
     }
 
+    // The masks SLAM used: a mono8 label image for every tracked frame that
+    // had masks, stamped as its frame.
+    let masks = samples(&got, "/dynslam/masks");
+    let masked = read_rows(&run.run_dir)
+        .iter()
+        .filter(|r| r["state"] == "ok" && r["mask_source"] != "none")
+        .count();
+    assert_eq!(
+        masks.len(),
+        masked,
+        "one mask image per masked tracked frame"
+    );
+    for m in masks {
+        assert_eq!(m["encoding"], "mono8");
+        assert_eq!(
+            (m["width"].as_u64(), m["height"].as_u64()),
+            (Some(640), Some(480))
+        );
+        assert_eq!(m["data_len"], 640 * 480);
+        assert_eq!(m["frame_id"], "camera_optical_frame");
+        assert!(odom.iter().any(|o| o["stamp"] == m["stamp"]));
+    }
     // The liveliness tokens parse as rmw_zenoh writes them.
     let tokens: Vec<&str> = got["tokens"]
         .as_array()

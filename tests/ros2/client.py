@@ -70,6 +70,11 @@ def summarise(typ, msg):
         return {"status": [{"name": s.name, "level": int(s.level), "message": s.message,
                             "values": {kv.key: kv.value for kv in s.values}}
                            for s in msg.status]}
+    if typ == "sensor_msgs/msg/Image":
+        return {"stamp": [msg.header.stamp.sec, msg.header.stamp.nanosec],
+                "frame_id": msg.header.frame_id, "encoding": msg.encoding,
+                "width": int(msg.width), "height": int(msg.height), "step": int(msg.step),
+                "data_len": len(msg.data), "labelled": int((msg.data > 0).sum())}
     if typ == "std_msgs/msg/String":
         return {"data": msg.data}
     return {}

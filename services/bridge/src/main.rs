@@ -14,7 +14,7 @@ use clap::{Parser, Subcommand};
 use pipeline::runtime::{run_service, ServiceArgs, ServiceContext};
 use pipeline::transport::{attach, wait, waitset, Wake};
 use shared_types::names::Topic;
-use shared_types::{Pose, ServiceKind, Track};
+use shared_types::{MasksHeader, Pose, ServiceKind, Track};
 
 #[derive(Parser, Debug)]
 #[command(about = "dynslam's ROS 2 bridge (rmw_zenoh wire format)")]
@@ -94,6 +94,12 @@ fn serve(ctx: ServiceContext, run_dir: &std::path::Path) -> Result<()> {
     let cfg = &ctx.config.bridge;
     let poses = ctx.transport.receiver::<Pose>(Topic::Poses)?;
     let tracks = ctx.transport.receiver::<Track>(Topic::Tracks)?;
+    // Only with mask_image: the label images are read in shared memory.
+    let masks = if cfg.mask_image {
+        Some(ctx.transport.slice_receiver::<MasksHeader>(Topic::Masks)?)
+    } else {
+        None
+    };
     let mut node = RosNode::open(cfg)?;
     let mut outputs = Outputs::new(&mut node, cfg, run_dir)?;
     // The robot's odom -> base arrives on tf (REP-105).
@@ -105,6 +111,7 @@ fn serve(ctx: ServiceContext, run_dir: &std::path::Path) -> Result<()> {
     let ws = waitset()?;
     let _p = attach(&ws, &poses)?;
     let _t = attach(&ws, &tracks)?;
+    let _m = masks.as_ref().map(|m| attach(&ws, m)).transpose()?;
     ctx.announce_ready()?;
     tracing::info!(
         zid = node.zid(),
@@ -120,9 +127,16 @@ fn serve(ctx: ServiceContext, run_dir: &std::path::Path) -> Result<()> {
     let mut router_checked = false;
     loop {
         let stopping = wait(&ws, TICK)? == Wake::Terminate;
+        // Masks before Tracks: a frame's masks come before its Track.
+        if let Some(m) = &masks {
+            m.clear_wakeups();
+            while let Some(sample) = m.next_sample()? {
+                outputs.on_masks(sample.user_header(), sample.payload());
+            }
+        }
         tracks.clear_wakeups();
         while let Some(t) = tracks.next()? {
-            outputs.on_track(&t);
+            outputs.on_track(&t)?;
         }
         if let Some(tf) = &tf_in {
             while let Some((dds, payload)) = tf.next() {

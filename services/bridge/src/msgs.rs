@@ -67,14 +67,18 @@ pub const CAMERA_INFO: MsgType = MsgType {
     hash: "RIHS01_b3dfd68ff46c9d56c80fd3bd4ed22c7a4ddce8c8348f2f59c299e73118e7e275",
 };
 
-/// Every type the bridge publishes (the interop test checks each hash).
-pub const ALL_TYPES: [MsgType; 6] = [
+/// Every type the bridge publishes or reads (the interop test checks each
+/// hash against rosbags').
+pub const ALL_TYPES: [MsgType; 9] = [
     ODOMETRY,
     TF_MESSAGE,
     PATH,
     POSE_ARRAY,
     DIAGNOSTIC_ARRAY,
     STRING,
+    IMAGE,
+    COMPRESSED_IMAGE,
+    CAMERA_INFO,
 ];
 
 /// `builtin_interfaces/Time`.
@@ -265,6 +269,19 @@ pub fn read_image(message: &[u8]) -> Result<Image<'_>, CdrError> {
         step: r.u32("step")?,
         data: r.bytes("data")?,
     })
+}
+
+/// A `sensor_msgs/Image` of one byte a pixel (`mono8`), rows packed.
+pub fn mono8_image(h: &Header, width: u32, height: u32, pixels: &[u8]) -> Vec<u8> {
+    let mut w = Writer::new();
+    header(&mut w, h);
+    w.u32(height);
+    w.u32(width);
+    w.string("mono8");
+    w.u8(0);
+    w.u32(width);
+    w.bytes(pixels);
+    w.finish()
 }
 
 /// `sensor_msgs/CompressedImage`.

@@ -6,7 +6,7 @@ use pipeline::config::BridgeConfig;
 use zenoh::handlers::{RingChannel, RingChannelHandler};
 use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::{Publisher, Subscriber};
-use zenoh::qos::CongestionControl;
+use zenoh::qos::{CongestionControl, Priority};
 use zenoh::sample::Sample;
 use zenoh::{Session, Wait};
 
@@ -119,6 +119,7 @@ impl RosNode {
         ty: MsgType,
         durability: Durability,
         depth: u32,
+        priority: Priority,
     ) -> Result<RosPublisher> {
         let fq = rmw::resolve(&self.info.namespace, topic);
         let key = rmw::topic_key(self.info.domain, &fq, &ty);
@@ -132,6 +133,9 @@ impl RosNode {
             .declare_publisher(key.clone())
             // rmw_zenoh: a keep-last publisher drops rather than blocks.
             .congestion_control(CongestionControl::Drop)
+            // Zenoh queues each priority apart: poses are never dropped
+            // behind a queue of images.
+            .priority(priority)
             .wait()
             .map_err(|e| anyhow!("cannot declare the publisher of {fq} ({key}): {e}"))?;
         let token = self

@@ -3,10 +3,11 @@
 //! the Tracks and the supervisor's `status.json` become diagnostics.
 //!
 //! The bridge may be killed at any time (its users test that): what it has
-//! published is kept in the run folder (`ros2_bridge.json`: the last frame
-//! and each topic's sequence number; `ros2_path.txt`: the path), so that a
-//! restarted bridge publishes no frame twice, continues every topic's
-//! sequence numbers and the path.
+//! published is kept in the run folder (`ros2_bridge.json`: the last frame,
+//! written before its messages go out, and each topic's sequence number;
+//! `ros2_path.txt`: the path), so that a restarted bridge publishes no frame
+//! twice, continues every topic's sequence numbers (after a gap of one)
+//! and the path.
 
 use std::collections::BTreeMap;
 use std::io::Write;
@@ -17,7 +18,7 @@ use anyhow::{Context, Result};
 use nalgebra::Isometry3;
 use pipeline::config::BridgeConfig;
 use serde::{Deserialize, Serialize};
-use shared_types::{Pose, Track, TrackState};
+use shared_types::{mask_flags, MaskSource, MasksHeader, Pose, Track, TrackState};
 
 use crate::frames::{self, Frames};
 use crate::msgs::{
@@ -26,6 +27,7 @@ use crate::msgs::{
 use crate::node::{RosNode, RosPublisher};
 use crate::odom::OdomBuffer;
 use crate::rmw::Durability;
+use zenoh::qos::Priority;
 
 /// The bridge's record in the run folder.
 pub const STATE_FILE: &str = "ros2_bridge.json";
@@ -58,6 +60,16 @@ fn diagonal(v: f64) -> [f64; 36] {
     c
 }
 
+/// A frame's masks waiting for its Track.
+struct PendingMasks {
+    seq: u64,
+    /// A `MaskSource` value.
+    source: u32,
+    width: u32,
+    height: u32,
+    labels: Vec<u8>,
+}
+
 /// Per-period counts for the diagnostics.
 #[derive(Debug, Default)]
 struct Window {
@@ -81,6 +93,9 @@ pub struct Outputs {
     keyframes: RosPublisher,
     slam_state: RosPublisher,
     diagnostics: RosPublisher,
+    /// `mask_image`: the masks of the frames SLAM has not answered yet,
+    /// oldest first.
+    masks: Option<(RosPublisher, Vec<PendingMasks>)>,
     path_poses: Vec<(Time, RosPose)>,
     keyframe_poses: Vec<RosPose>,
     path_file: std::fs::File,
@@ -114,24 +129,46 @@ impl Outputs {
             .append(true)
             .open(run_dir.join(PATH_FILE))
             .with_context(|| format!("cannot open {}", run_dir.join(PATH_FILE).display()))?;
-        let mut publisher = |topic: &str, ty, durability, depth| -> Result<RosPublisher> {
-            let mut p = node.publisher(topic, ty, durability, depth)?;
-            p.sequence_number = state.sequence_numbers.get(&p.topic).copied().unwrap_or(0);
-            Ok(p)
-        };
+        let mut publisher =
+            |topic: &str, ty, durability, depth, priority| -> Result<RosPublisher> {
+                let mut p = node.publisher(topic, ty, durability, depth, priority)?;
+                // The record is written before a frame's messages go out and
+                // after the period's: a bridge killed in between may have sent
+                // one more on a topic than it says, so the numbers go on one
+                // further (a gap, never a number twice).
+                p.sequence_number = state.sequence_numbers.get(&p.topic).map_or(0, |n| n + 1);
+                Ok(p)
+            };
         let volatile = Durability::Volatile;
-        let odometry = publisher(&cfg.odometry_topic, msgs::ODOMETRY, volatile, 10)?;
-        let tf = publisher(&cfg.tf_topic, msgs::TF_MESSAGE, volatile, 100)?;
+        // Poses first: a robot's controller waits on them; images last.
+        let (high, normal, low) = (Priority::DataHigh, Priority::Data, Priority::DataLow);
+        let odometry = publisher(&cfg.odometry_topic, msgs::ODOMETRY, volatile, 10, high)?;
+        let tf = publisher(&cfg.tf_topic, msgs::TF_MESSAGE, volatile, 100, high)?;
         let tf_static = publisher(
             &cfg.tf_static_topic,
             msgs::TF_MESSAGE,
             Durability::TransientLocal,
             1,
+            high,
         )?;
-        let path = publisher(&cfg.path_topic, msgs::PATH, volatile, 1)?;
-        let keyframes = publisher(&cfg.keyframes_topic, msgs::POSE_ARRAY, volatile, 1)?;
-        let slam_state = publisher(&cfg.state_topic, msgs::STRING, volatile, 10)?;
-        let diagnostics = publisher(&cfg.diagnostics_topic, msgs::DIAGNOSTIC_ARRAY, volatile, 10)?;
+        let path = publisher(&cfg.path_topic, msgs::PATH, volatile, 1, normal)?;
+        let keyframes = publisher(&cfg.keyframes_topic, msgs::POSE_ARRAY, volatile, 1, normal)?;
+        let slam_state = publisher(&cfg.state_topic, msgs::STRING, volatile, 10, high)?;
+        let diagnostics = publisher(
+            &cfg.diagnostics_topic,
+            msgs::DIAGNOSTIC_ARRAY,
+            volatile,
+            10,
+            normal,
+        )?;
+        let masks = if cfg.mask_image {
+            Some((
+                publisher(&cfg.mask_topic, msgs::IMAGE, volatile, 1, low)?,
+                Vec::new(),
+            ))
+        } else {
+            None
+        };
         let frames = Frames::new(
             &cfg.world_frame,
             frames::mounting(cfg.camera_xyz, cfg.camera_rpy),
@@ -151,6 +188,7 @@ impl Outputs {
             keyframes,
             slam_state,
             diagnostics,
+            masks,
             path_poses,
             keyframe_poses,
             path_file,
@@ -201,6 +239,10 @@ impl Outputs {
             self.refused += 1;
             return Ok(());
         };
+        // Recorded before anything goes out: a bridge killed while
+        // publishing this frame leaves it out, never sends it twice.
+        self.state.last_seq = Some(p.seq);
+        self.save_state()?;
         self.window.answered += 1;
         self.window.first_seq.get_or_insert(p.seq);
         self.window.last_seq = Some(p.seq);
@@ -219,8 +261,7 @@ impl Outputs {
         } else {
             self.last_tracked = None;
         }
-        self.state.last_seq = Some(p.seq);
-        self.save_state()
+        Ok(())
     }
 
     fn publish_pose(
@@ -329,8 +370,59 @@ impl Outputs {
         format!("{total} ({})", why.join(", "))
     }
 
+    /// A set of masks (only with `mask_image`): kept until the SLAM says
+    /// which masks it tracked the frame with.
+    pub fn on_masks(&mut self, h: &MasksHeader, labels: &[u8]) {
+        let Some((_, pending)) = &mut self.masks else {
+            return;
+        };
+        let len = h.width as usize * h.height as usize;
+        if h.has(mask_flags::GONE) || h.has(mask_flags::FAILED) || labels.len() < len || len == 0 {
+            return;
+        }
+        pending.push(PendingMasks {
+            seq: h.seq,
+            source: h.source,
+            width: h.width,
+            height: h.height,
+            labels: labels[..len].to_vec(),
+        });
+        // A frame has at most a segmenter's and a propagator's masks; a few
+        // frames' worth waits for the SLAM.
+        if pending.len() > 8 {
+            pending.remove(0);
+        }
+    }
+
+    /// The masks the SLAM tracked frame `t` with, as a mono8 image.
+    fn publish_masks(&mut self, t: &Track) -> Result<()> {
+        let stamp = Time::from_secs(t.source_timestamp);
+        let frame = self.cfg.camera_frame.clone();
+        let Some((publisher, pending)) = &mut self.masks else {
+            return Ok(());
+        };
+        let used = pending
+            .iter()
+            .position(|m| m.seq == t.seq && m.source == t.mask_source);
+        let tracked = TrackState::from_u32(t.state).is_some_and(TrackState::is_tracked);
+        let result = match used {
+            Some(i) if tracked && t.mask_source != MaskSource::None as u32 => {
+                let m = &pending[i];
+                let header = Header {
+                    stamp,
+                    frame_id: frame,
+                };
+                publisher.publish(msgs::mono8_image(&header, m.width, m.height, &m.labels))
+            }
+            _ => Ok(()),
+        };
+        pending.retain(|m| m.seq > t.seq);
+        result
+    }
+
     /// A Track: its latency and counts for the diagnostics.
-    pub fn on_track(&mut self, t: &Track) {
+    pub fn on_track(&mut self, t: &Track) -> Result<()> {
+        self.publish_masks(t)?;
         let s = t.stamps;
         if s.capture_ns > 0 && s.track_done_ns > s.capture_ns {
             self.window
@@ -338,6 +430,7 @@ impl Outputs {
                 .push((s.track_done_ns - s.capture_ns) as f64 / 1e6);
         }
         self.last_track = Some(*t);
+        Ok(())
     }
 
     /// Periodic work: the path, the diagnostics, the state and tf_static
@@ -499,7 +592,10 @@ impl Outputs {
             &self.keyframes,
             &self.slam_state,
             &self.diagnostics,
-        ] {
+        ]
+        .into_iter()
+        .chain(self.masks.as_ref().map(|(p, _)| p))
+        {
             self.state
                 .sequence_numbers
                 .insert(p.topic.clone(), p.sequence_number);

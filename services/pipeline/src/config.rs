@@ -77,6 +77,11 @@ pub struct BridgeConfig {
     pub path_topic: String,
     pub keyframes_topic: String,
     pub state_topic: String,
+    /// The masks SLAM tracked each frame with, as a mono8 label image
+    /// (0 background, i + 1 instance i) on `mask_topic`; off by default
+    /// (300 KB a frame).
+    pub mask_image: bool,
+    pub mask_topic: String,
     pub tf_topic: String,
     pub tf_static_topic: String,
     pub diagnostics_topic: String,
@@ -111,6 +116,8 @@ impl Default for BridgeConfig {
             path_topic: "dynslam/path".into(),
             keyframes_topic: "dynslam/keyframes".into(),
             state_topic: "dynslam/state".into(),
+            mask_image: false,
+            mask_topic: "dynslam/masks".into(),
             tf_topic: "tf".into(),
             tf_static_topic: "tf_static".into(),
             diagnostics_topic: "/diagnostics".into(),
@@ -169,6 +176,7 @@ impl BridgeConfig {
             ("bridge.path_topic", &self.path_topic),
             ("bridge.keyframes_topic", &self.keyframes_topic),
             ("bridge.state_topic", &self.state_topic),
+            ("bridge.mask_topic", &self.mask_topic),
             ("bridge.tf_topic", &self.tf_topic),
             ("bridge.tf_static_topic", &self.tf_static_topic),
             ("bridge.diagnostics_topic", &self.diagnostics_topic),

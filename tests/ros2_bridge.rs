@@ -14,15 +14,9 @@ use std::time::{Duration, Instant};
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
 use serde_json::Value;
 
-/// The Python of `.cache/ros2-venv`, which `just ros2py` (part of `just test`) makes.
+/// The Python of `.cache/ros2-venv` (the ROS 2 test clients).
 fn ros2_python() -> PathBuf {
-    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join(".cache/ros2-venv/bin/python");
-    assert!(
-        venv.is_file(),
-        "{} missing: `just ros2py` (part of `just test`) installs the ROS 2 test clients",
-        venv.display()
-    );
-    venv
+    venv_python("ros2-venv", "ros2py")
 }
 
 /// The tests of this file run one at a time: several are real-time runs

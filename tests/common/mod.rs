@@ -57,16 +57,24 @@ pub fn shared_tum() -> PathBuf {
         .join("../shared/data/tum/rgbd_dataset_freiburg1_rpy_first300")
 }
 
-/// The Python of `.cache/iox2-venv` (iceoryx2's binding and Pillow), which
-/// `just pyiceoryx2` (part of `just test`) makes.
-pub fn iox2_python() -> PathBuf {
-    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join(".cache/iox2-venv/bin/python");
+/// The Python of the repo's `.cache/<venv>`, which `just <recipe>` (part
+/// of `just test`) makes.
+pub fn venv_python(venv: &str, recipe: &str) -> PathBuf {
+    let python = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join(".cache")
+        .join(venv)
+        .join("bin/python");
     assert!(
-        venv.is_file(),
-        "{} missing: `just pyiceoryx2` (part of `just test`) installs iceoryx2's Python binding",
-        venv.display()
+        python.is_file(),
+        "{} missing: `just {recipe}` (part of `just test`) installs it",
+        python.display()
     );
-    venv
+    python
+}
+
+/// The Python of `.cache/iox2-venv` (iceoryx2's binding and Pillow).
+pub fn iox2_python() -> PathBuf {
+    venv_python("iox2-venv", "pyiceoryx2")
 }
 
 /// A fresh scratch folder for one test.

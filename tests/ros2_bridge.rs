@@ -173,7 +173,14 @@ fn ros2_clients_we_did_not_write_get_every_tracked_pose_of_a_real_run() {
     let _serial = one_at_a_time();
     let dir = scratch("ros2-bridge");
     let endpoint = format!("tcp/127.0.0.1:{}", free_port());
-    let router = PyClient::start("listen", &endpoint, &dir.join("listen.json"), &[]);
+    // A hand-held camera: the map frame's z = 0 is the camera's height at
+    // the start, so the grid's band takes in the desk below it.
+    let router = PyClient::start(
+        "listen",
+        &endpoint,
+        &dir.join("listen.json"),
+        &["--grid-band", "-1.0", "1.0"],
+    );
     let msgs = dir.join("msgs");
     let sdk = PyClient::start(
         "sdk",
@@ -183,7 +190,9 @@ fn ros2_clients_we_did_not_write_get_every_tracked_pose_of_a_real_run() {
     );
     // The product's defaults (real models, lockstep), the bridge pointed at
     // the test's router.
-    let toml = format!("[bridge]\nconnect = [\"{endpoint}\"]\nmask_image = true\n");
+    let toml = format!(
+        "[bridge]\nconnect = [\"{endpoint}\"]\nmask_image = true\ngrid_min_height = -1.0\ngrid_max_height = 1.0\n"
+    );
     let run = bridge_run(&dir, &toml, "ros2", 90);
     let sdk = sdk.finish();
     let got = router.finish();
@@ -203,6 +212,8 @@ fn ros2_clients_we_did_not_write_get_every_tracked_pose_of_a_real_run() {
         "diagnostic_msgs/msg/DiagnosticArray",
         "std_msgs/msg/String",
         "sensor_msgs/msg/Image",
+        "sensor_msgs/msg/PointCloud2",
+        "nav_msgs/msg/OccupancyGrid",
     ] {
         let h = &hashes[ty];
         assert_eq!(h["key"], h["rosbags"], "{ty}: {h}");
@@ -250,6 +261,66 @@ fn ros2_clients_we_did_not_write_get_every_tracked_pose_of_a_real_run() {
     let keyframes = samples(&got, "/dynslam/keyframes");
     assert!(!keyframes.is_empty());
     assert_eq!(samples(&got, "/dynslam/state")[0]["data"], "ok");
+
+    // The map: a cloud after keyframes (x y z rgb, float32, in the map
+    // frame), the keyframes again as the map holds them, and the occupancy
+    // grid, whose occupied cells are those recomputed here from the cloud of
+    // the same map.
+    let clouds = samples(&got, "/dynslam/map_points");
+    assert!(clouds.len() >= 2, "{} clouds", clouds.len());
+    for c in clouds {
+        assert_eq!(c["frame_id"], "map");
+        assert_eq!(c["height"], 1);
+        assert_eq!(c["point_step"], 16);
+        assert_eq!(
+            c["fields"],
+            serde_json::json!([
+                ["x", 0, 7, 1],
+                ["y", 4, 7, 1],
+                ["z", 8, 7, 1],
+                ["rgb", 12, 7, 1]
+            ])
+        );
+        assert_eq!(
+            c["data_len"].as_u64(),
+            Some(16 * c["width"].as_u64().unwrap())
+        );
+        assert_eq!(c["finite"], true);
+    }
+    let last_cloud = clouds.last().unwrap()["width"].as_u64().unwrap();
+    assert!(last_cloud > 1000, "only {last_cloud} map points");
+    let kf_arrays: Vec<u64> = keyframes
+        .iter()
+        .map(|k| k["poses"].as_u64().unwrap())
+        .collect();
+    assert!(kf_arrays.iter().any(|&n| n > 3), "{kf_arrays:?}");
+    let grids = samples(&got, "/map");
+    assert!(!grids.is_empty());
+    for g in grids {
+        assert_eq!(g["frame_id"], "map");
+        assert!((g["resolution"].as_f64().unwrap() - 0.05).abs() < 1e-6);
+        assert_eq!(
+            g["data_len"].as_u64(),
+            Some(g["width"].as_u64().unwrap() * g["height"].as_u64().unwrap())
+        );
+    }
+    let last_grid = grids.last().unwrap();
+    assert!(
+        last_grid["occupied"].as_u64().unwrap() > 20 && last_grid["free"].as_u64().unwrap() > 20,
+        "{last_grid}"
+    );
+    let checks = got["grid_checks"].as_array().unwrap();
+    assert!(!checks.is_empty(), "no grid with its cloud");
+    for c in checks {
+        let (grid, mine, common) = (
+            c["grid"].as_u64().unwrap() as f64,
+            c["recomputed"].as_u64().unwrap() as f64,
+            c["common"].as_u64().unwrap() as f64,
+        );
+        // Cells at a boundary may differ by the float rounding of a
+        // coordinate; nothing else may.
+        assert!(common >= 0.98 * grid.max(mine), "{c}");
+    }
     // Diagnostics: the SLAM's figures and each service's state.
     let diag = samples(&got, "/diagnostics");
     assert!(!diag.is_empty());
@@ -325,6 +396,122 @@ fn ros2_clients_we_did_not_write_get_every_tracked_pose_of_a_real_run() {
         hashes["nav_msgs/msg/Odometry"]["rosbags"]
     );
     assert_eq!(sdk["received"].as_array().unwrap().len(), odom.len());
+    assert_no_shm_left(&run.run_id);
+}
+
+/// The map services, called by zenoh-ros2-sdk's service client (a ROS 2
+/// node we did not write) during a real run: a map saved by name, a name
+/// that would leave the maps folder refused, localization mode on (no
+/// keyframe while it is) and off, a reset (a new map).
+#[test]
+fn map_services_answer_a_ros2_client_and_a_name_never_leaves_the_maps_folder() {
+    let _serial = one_at_a_time();
+    let dir = scratch("ros2-services");
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let router = PyClient::start("listen", &endpoint, &dir.join("listen.json"), &[]);
+    let srv =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/ros2/dynslam_interfaces/srv/SaveMap.srv");
+    let client = PyClient::start(
+        "services",
+        &endpoint,
+        &dir.join("services.json"),
+        &["--srv", srv.to_str().unwrap(), "--seconds", "240"],
+    );
+    let maps = dir.join("maps");
+    let toml = format!(
+        "[bridge]\nconnect = [\"{endpoint}\"]\nservices = true\nmaps_dir = \"{}\"\n",
+        maps.display()
+    );
+    let run = bridge_run(&dir, &toml, "ros2srv", 160);
+    let got = client.finish();
+    let router = router.finish();
+
+    // Listed as ROS 2 lists services, with the hashes the SDK computes.
+    let listed = got["services"].as_array().unwrap();
+    for (name, ty) in [
+        ("/dynslam/save_map", "dynslam_interfaces/srv/SaveMap"),
+        ("/dynslam/reset", "std_srvs/srv/Trigger"),
+        ("/dynslam/set_localization_mode", "std_srvs/srv/SetBool"),
+    ] {
+        assert!(
+            listed.iter().any(|s| s[0] == name && s[1][0] == ty),
+            "{name} not in {listed:?}"
+        );
+        let token = router["tokens"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter_map(|t| t[1].as_str())
+            .find(|t| t.contains("/SS/") && t.contains(&name.replace('/', "%")))
+            .unwrap_or_else(|| panic!("no service token for {name}"));
+        assert_eq!(
+            token.split('/').nth(11),
+            got["hashes"][ty].as_str(),
+            "{token}"
+        );
+    }
+
+    let calls = got["calls"].as_array().unwrap();
+    assert_eq!(calls.len(), 5, "{calls:?}");
+    let (save, evil, on, off, reset) = (&calls[0], &calls[1], &calls[2], &calls[3], &calls[4]);
+    for c in calls {
+        assert!(c["success"].is_boolean(), "no response: {c}");
+    }
+    // Saved where it was told, a map file the SLAM reads back.
+    assert_eq!(save["success"], true, "{save}");
+    assert!(
+        save["message"].as_str().unwrap().contains("office.map"),
+        "{save}"
+    );
+    let saved = std::fs::read(maps.join("office.map")).unwrap();
+    assert_eq!(&saved[..8], b"DSLAMMAP");
+    // Refused, naming why; nothing written outside the maps folder.
+    assert_eq!(evil["success"], false, "{evil}");
+    assert!(
+        evil["message"].as_str().unwrap().contains("map name"),
+        "{evil}"
+    );
+    assert!(!dir.join("evil.map").exists() && !maps.join("evil.map").exists());
+    assert_eq!(std::fs::read_dir(&maps).unwrap().count(), 1);
+
+    // Tracked frames in order, as the odometry counted them.
+    let rows: Vec<Row> = read_rows(&run.run_dir)
+        .into_iter()
+        .filter(|r| r["state"] == "ok" || r["state"] == "relocalised")
+        .collect();
+    let keyframes = |r: &Row| r["keyframes"].parse::<u64>().unwrap();
+    let at = |c: &Value, key: &str| c[key].as_u64().unwrap() as usize;
+    // Localization mode: no keyframe between its on and off (a frame or
+    // two of margin: the odometry trails the SLAM).
+    assert_eq!(
+        (on["success"].clone(), off["success"].clone()),
+        (true.into(), true.into())
+    );
+    let quiet = &rows[at(on, "at_response") + 2..at(off, "at_request").min(rows.len())];
+    assert!(
+        quiet.len() >= 30,
+        "{} frames in localization mode",
+        quiet.len()
+    );
+    assert!(
+        quiet.iter().all(|r| r["keyframe"] == "0"),
+        "a keyframe in localization mode"
+    );
+    assert!(rows[..at(on, "at_request")]
+        .iter()
+        .any(|r| r["keyframe"] == "1"));
+    // Reset: a new map, its keyframe count starting again.
+    assert_eq!(reset["success"], true, "{reset}");
+    let before = keyframes(&rows[at(reset, "at_request").saturating_sub(1)]);
+    let after = rows[at(reset, "at_response") + 2..]
+        .iter()
+        .map(keyframes)
+        .min()
+        .expect("frames after the reset");
+    assert!(
+        before > 5 && after < before,
+        "keyframes {before} before the reset, {after} after"
+    );
     assert_no_shm_left(&run.run_id);
 }
 

@@ -508,6 +508,125 @@ pub struct Control {
     pub replay_seq: u64,
 }
 
+/// User header of a map snapshot (slam -> bridge, throttled): the map as
+/// local mapping left it. The slice payload holds `keyframes` poses
+/// ([`MAP_KEYFRAME_BYTES`] each: world-from-camera tx ty tz qx qy qz qw as
+/// native `f64`) followed by `points` points ([`MAP_POINT_BYTES`] each:
+/// x y z as native `f32`, r g b and a pad byte, and the index of the
+/// keyframe that observed it first as native `u32`).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+pub struct MapHeader {
+    /// Snapshots of this SLAM process so far (1, 2, ...).
+    pub version: u64,
+    /// Capture time of the newest keyframe's frame (seconds, camera clock).
+    pub stamp: f64,
+    /// Loops closed so far (each moved keyframes).
+    pub loops: u32,
+    pub keyframes: u32,
+    pub points: u32,
+    /// Points left out: the sample had no room for them.
+    pub points_left_out: u32,
+}
+
+pub const MAP_KEYFRAME_BYTES: usize = 56;
+pub const MAP_POINT_BYTES: usize = 20;
+
+impl MapHeader {
+    /// Bytes the payload must hold.
+    pub fn payload_len(&self) -> usize {
+        self.keyframes as usize * MAP_KEYFRAME_BYTES + self.points as usize * MAP_POINT_BYTES
+    }
+}
+
+/// What the bridge asks the SLAM (ROS 2 services).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u32)]
+pub enum SlamCommandKind {
+    /// Write the map to `name` (a file name, checked by the SLAM too) in
+    /// `bridge.maps_dir`.
+    SaveMap = 1,
+    /// Drop the map and start a new one with the next frame.
+    Reset = 2,
+    /// ORB-SLAM2's localization mode on (`flag` 1) or off (0).
+    SetLocalizationMode = 3,
+}
+
+impl SlamCommandKind {
+    pub fn from_u32(v: u32) -> Option<Self> {
+        match v {
+            1 => Some(Self::SaveMap),
+            2 => Some(Self::Reset),
+            3 => Some(Self::SetLocalizationMode),
+            _ => None,
+        }
+    }
+}
+
+/// Length of a command's name and of a reply's message.
+pub const COMMAND_TEXT_LEN: usize = ERROR_TEXT_LEN;
+
+/// bridge -> slam: one command, answered by a [`SlamReply`] with its id.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, ZeroCopySend)]
+pub struct SlamCommand {
+    pub id: u64,
+    /// A [`SlamCommandKind`] value.
+    pub kind: u32,
+    pub flag: u32,
+    /// NUL-padded UTF-8 ([`write_error_text`]).
+    pub name: [u8; COMMAND_TEXT_LEN],
+}
+
+impl Default for SlamCommand {
+    fn default() -> Self {
+        Self {
+            id: 0,
+            kind: 0,
+            flag: 0,
+            name: [0; COMMAND_TEXT_LEN],
+        }
+    }
+}
+
+/// slam -> bridge: the outcome of command `id`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, ZeroCopySend)]
+pub struct SlamReply {
+    pub id: u64,
+    /// 1: done.
+    pub ok: u32,
+    pub reserved: u32,
+    /// What was done, or why not (NUL-padded UTF-8).
+    pub message: [u8; COMMAND_TEXT_LEN],
+}
+
+impl Default for SlamReply {
+    fn default() -> Self {
+        Self {
+            id: 0,
+            ok: 0,
+            reserved: 0,
+            message: [0; COMMAND_TEXT_LEN],
+        }
+    }
+}
+
+impl SlamReply {
+    pub fn new(id: u64, result: Result<String, String>) -> Self {
+        let mut reply = Self {
+            id,
+            ok: result.is_ok() as u32,
+            ..Self::default()
+        };
+        let text = match &result {
+            Ok(t) | Err(t) => t,
+        };
+        write_error_text(&mut reply.message, text);
+        reply
+    }
+}
+
 /// Writes `text` into a fixed NUL-padded buffer, cutting at a char boundary.
 pub fn write_error_text(buf: &mut [u8; ERROR_TEXT_LEN], text: &str) {
     *buf = [0; ERROR_TEXT_LEN];

@@ -25,10 +25,16 @@ pub enum Topic {
     /// slam -> anyone outside the pipeline: `Pose` (the public pose stream,
     /// README "Poses out").
     Poses,
+    /// slam -> bridge: `MapHeader` + keyframes and points (ROS 2 map topics).
+    Map,
+    /// bridge -> slam: `SlamCommand` (ROS 2 services).
+    SlamCommands,
+    /// slam -> bridge: `SlamReply`.
+    SlamReplies,
 }
 
 impl Topic {
-    pub const ALL: [Topic; 7] = [
+    pub const ALL: [Topic; 10] = [
         Topic::Frames,
         Topic::Routes,
         Topic::Masks,
@@ -36,6 +42,9 @@ impl Topic {
         Topic::Lifecycle,
         Topic::Control,
         Topic::Poses,
+        Topic::Map,
+        Topic::SlamCommands,
+        Topic::SlamReplies,
     ];
     pub fn as_str(self) -> &'static str {
         match self {
@@ -46,6 +55,9 @@ impl Topic {
             Topic::Lifecycle => "lifecycle",
             Topic::Control => "control",
             Topic::Poses => "poses",
+            Topic::Map => "map",
+            Topic::SlamCommands => "slam-commands",
+            Topic::SlamReplies => "slam-replies",
         }
     }
 }

@@ -3,9 +3,12 @@
 `listen`: a Zenoh router (eclipse-zenoh, PyPI) that records every sample and
 liveliness token; each sample is decoded by `rosbags` from its Jazzy type
 store (CDR), and each key's type hash is checked against the RIHS01 that
-`rosbags` computes. `sdk`: `zenoh-ros2-sdk` (ROBOTIS, PyPI) discovers the
-graph and subscribes to the odometry as a ROS 2 node would, with message
-definitions written from rosbags' store (it must not clone anything).
+`rosbags` computes; the occupancy grid is recomputed here (numpy) from the
+point cloud of the same map. `sdk`: `zenoh-ros2-sdk` (ROBOTIS, PyPI)
+discovers the graph and subscribes to the odometry as a ROS 2 node would,
+with message definitions written from rosbags' store (it must not clone
+anything). `services`: zenoh-ros2-sdk's service client calls the map
+services during a run, with type hashes it computes itself.
 
 Runs until its standard input closes (or --seconds pass), then writes the
 JSON record named by --out and exits.
@@ -77,7 +80,61 @@ def summarise(typ, msg):
                 "data_len": len(msg.data), "labelled": int((msg.data > 0).sum())}
     if typ == "std_msgs/msg/String":
         return {"data": msg.data}
+    if typ == "sensor_msgs/msg/PointCloud2":
+        return {"stamp": [msg.header.stamp.sec, msg.header.stamp.nanosec],
+                "frame_id": msg.header.frame_id,
+                "fields": [[f.name, int(f.offset), int(f.datatype), int(f.count)] for f in msg.fields],
+                "width": int(msg.width), "height": int(msg.height),
+                "point_step": int(msg.point_step), "row_step": int(msg.row_step),
+                "data_len": len(msg.data), "is_dense": bool(msg.is_dense),
+                "_xyz": cloud_xyz(msg)}
+    if typ == "nav_msgs/msg/OccupancyGrid":
+        import numpy as np
+        data = np.asarray(msg.data, dtype=np.int8)
+        return {"stamp": [msg.header.stamp.sec, msg.header.stamp.nanosec],
+                "frame_id": msg.header.frame_id, "resolution": float(msg.info.resolution),
+                "width": int(msg.info.width), "height": int(msg.info.height),
+                "origin": pose_list(msg.info.origin), "data_len": len(data),
+                "occupied": int((data == 100).sum()), "free": int((data == 0).sum()),
+                "unknown": int((data == -1).sum()),
+                "_occupied_cells": [int(i) for i in np.flatnonzero(data == 100)]}
     return {}
+
+
+def cloud_xyz(msg):
+    """The cloud's x y z as a numpy array, read by the fields' offsets."""
+    import numpy as np
+    raw = np.frombuffer(bytes(msg.data), dtype=np.uint8).reshape(-1, msg.point_step)
+    off = {f.name: int(f.offset) for f in msg.fields}
+    return np.stack([raw[:, off[a]:off[a] + 4].copy().view("<f4")[:, 0] for a in "xyz"], axis=1)
+
+
+def grid_check(record, band, min_points):
+    """For each grid, the occupied cells recomputed from the cloud of the
+    same map (same stamp): points in the height band, counted per cell."""
+    import numpy as np
+    clouds = {tuple(c["stamp"]): c.pop("_xyz") for c in record["samples"].get("/dynslam/map_points", [])}
+    checks = []
+    for g in record["samples"].get("/map", []):
+        cells = set(g.pop("_occupied_cells"))
+        xyz = clouds.get(tuple(g["stamp"]))
+        if xyz is None:
+            continue
+        res = round(g["resolution"], 6)
+        ox, oy = g["origin"][0], g["origin"][1]
+        inside = (xyz[:, 2] >= band[0]) & (xyz[:, 2] < band[1])
+        cx = np.floor((xyz[inside, 0].astype(np.float64) - ox) / res).astype(np.int64)
+        cy = np.floor((xyz[inside, 1].astype(np.float64) - oy) / res).astype(np.int64)
+        ok = (cx >= 0) & (cy >= 0) & (cx < g["width"]) & (cy < g["height"])
+        idx, counts = np.unique(cy[ok] * g["width"] + cx[ok], return_counts=True)
+        mine = set(int(i) for i in idx[counts >= min_points])
+        checks.append({"grid": len(cells), "recomputed": len(mine), "common": len(cells & mine),
+                       "points": int(len(xyz)), "in_band": int(inside.sum())})
+    for c in record["samples"].get("/dynslam/map_points", []):
+        c.pop("_xyz", None)
+    for g in record["samples"].get("/map", []):
+        g.pop("_occupied_cells", None)
+    record["grid_checks"] = checks
 
 
 def wait_for_end(seconds):
@@ -132,6 +189,9 @@ def listen(args):
     print("ready", flush=True)
     wait_for_end(args.seconds)
     with lock:
+        for c in record["samples"].get("/dynslam/map_points", []):
+            c["finite"] = bool(__import__("numpy").isfinite(c["_xyz"]).all())
+        grid_check(record, args.grid_band, args.grid_min_points)
         text = json.dumps(record)
     with open(args.out, "w") as f:
         f.write(text)
@@ -329,9 +389,88 @@ def sdk(args):
     os._exit(0)
 
 
+SRV_DEFS = {
+    # Request, response: as `ros2 interface show` prints them (Jazzy).
+    "std_srvs/srv/Trigger": ("", "bool success\nstring message"),
+    "std_srvs/srv/SetBool": ("bool data", "bool success\nstring message"),
+}
+
+
+def services(args):
+    """Calls the map services as a ROS 2 node would (zenoh-ros2-sdk's
+    client, type hashes computed by the SDK from the definitions), while
+    counting the run's odometry; records each response with the odometry
+    count at request and response."""
+    from zenoh_ros2_sdk import ROS2ServiceClient
+    from zenoh_ros2_sdk.discovery import get_service_names_and_types
+    from zenoh_ros2_sdk.utils import compute_service_type_hash
+
+    req, _, resp = open(args.srv).read().partition("---")
+    defs = dict(SRV_DEFS)
+    defs["dynslam_interfaces/srv/SaveMap"] = (req.strip(), resp.strip())
+    host, port = args.endpoint.removeprefix("tcp/").rsplit(":", 1)
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps([args.endpoint]))
+    session = zenoh.open(conf)
+    count = [0]
+    sub = session.declare_subscriber(f"{args.domain}/dynslam/odometry/**",
+                                     lambda s: count.__setitem__(0, count[0] + 1))
+    hashes = {t: compute_service_type_hash(t, d[0] or "# empty", d[1]) for t, d in defs.items()}
+    clients = {}
+
+    def client(service, typ):
+        if service not in clients:
+            clients[service] = ROS2ServiceClient(
+                service_name=service, srv_type=typ, request_definition=defs[typ][0] or "# empty",
+                response_definition=defs[typ][1], type_hash=hashes[typ], router_ip=host,
+                router_port=int(port), domain_id=args.domain, timeout=60.0)
+        return clients[service]
+
+    def wait_frames(n):
+        deadline = time.time() + args.seconds
+        while count[0] < n and time.time() < deadline:
+            time.sleep(0.02)
+
+    calls = []
+
+    def call(service, typ, **kw):
+        before = count[0]
+        r = client(service, typ).call(**kw)
+        calls.append({"service": service, "request": kw, "at_request": before, "at_response": count[0],
+                      "success": None if r is None else bool(r.success),
+                      "message": None if r is None else r.message})
+
+    print("ready", flush=True)
+    wait_frames(30)
+    # Discovery is a liveliness query: asked again until the graph has them.
+    listed, deadline = [], time.time() + 10
+    while len(listed) < 3 and time.time() < deadline:
+        listed = [s for s in get_service_names_and_types(domain_id=args.domain, router_ip=host,
+                                                          router_port=int(port))
+                  if s[0].startswith("/dynslam/")]
+        time.sleep(0.2)
+    call("/dynslam/save_map", "dynslam_interfaces/srv/SaveMap", name="office")
+    call("/dynslam/save_map", "dynslam_interfaces/srv/SaveMap", name="../evil")
+    call("/dynslam/set_localization_mode", "std_srvs/srv/SetBool", data=True)
+    wait_frames(calls[-1]["at_response"] + 40)
+    call("/dynslam/set_localization_mode", "std_srvs/srv/SetBool", data=False)
+    wait_frames(calls[-1]["at_response"] + 20)
+    call("/dynslam/reset", "std_srvs/srv/Trigger")
+    wait_for_end(args.seconds)
+    with open(args.out, "w") as f:
+        json.dump({"services": listed, "calls": calls, "hashes": hashes}, f)
+    del sub
+    os._exit(0)
+
+
 def main():
     p = argparse.ArgumentParser()
-    p.add_argument("mode", choices=["listen", "sdk", "play"])
+    p.add_argument("mode", choices=["listen", "sdk", "play", "services"])
+    p.add_argument("--srv", help="services: the SaveMap.srv of docs/ros2/dynslam_interfaces")
+    p.add_argument("--grid-band", type=float, nargs=2, default=[0.1, 1.5],
+                   help="listen: the run's grid_min_height and grid_max_height")
+    p.add_argument("--grid-min-points", type=int, default=2)
     p.add_argument("--tum", help="play: the TUM folder to play")
     p.add_argument("--limit", type=int, default=300, help="play: frames")
     p.add_argument("--fps", type=float, default=15.0, help="play: frames a second")
@@ -347,7 +486,7 @@ def main():
     p.add_argument("--seconds", type=float, default=300)
     p.add_argument("--out", required=True)
     args = p.parse_args()
-    {"listen": listen, "sdk": sdk, "play": play}[args.mode](args)
+    {"listen": listen, "sdk": sdk, "play": play, "services": services}[args.mode](args)
 
 
 if __name__ == "__main__":

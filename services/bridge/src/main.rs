@@ -10,11 +10,12 @@ use std::time::{Duration, Instant};
 use anyhow::Result;
 use bridge::node::RosNode;
 use bridge::outputs::Outputs;
+use bridge::services::MapServices;
 use clap::{Parser, Subcommand};
 use pipeline::runtime::{run_service, ServiceArgs, ServiceContext};
 use pipeline::transport::{attach, wait, waitset, Wake};
 use shared_types::names::Topic;
-use shared_types::{MasksHeader, Pose, ServiceKind, Track};
+use shared_types::{MapHeader, MasksHeader, Pose, ServiceKind, Track};
 
 #[derive(Parser, Debug)]
 #[command(about = "dynslam's ROS 2 bridge (rmw_zenoh wire format)")]
@@ -100,8 +101,15 @@ fn serve(ctx: ServiceContext, run_dir: &std::path::Path) -> Result<()> {
     } else {
         None
     };
+    // The map as local mapping leaves it (the SLAM sends it with a bridge).
+    let map = ctx.transport.slice_receiver::<MapHeader>(Topic::Map)?;
     let mut node = RosNode::open(cfg)?;
     let mut outputs = Outputs::new(&mut node, cfg, run_dir)?;
+    let (mut services, replies) = if cfg.services {
+        Some(MapServices::open(&mut node, &ctx.transport)?).unzip()
+    } else {
+        (None, None)
+    };
     // The robot's odom -> base arrives on tf (REP-105).
     let tf_in = if cfg.odom_frame.is_empty() {
         None
@@ -112,6 +120,8 @@ fn serve(ctx: ServiceContext, run_dir: &std::path::Path) -> Result<()> {
     let _p = attach(&ws, &poses)?;
     let _t = attach(&ws, &tracks)?;
     let _m = masks.as_ref().map(|m| attach(&ws, m)).transpose()?;
+    let _map = attach(&ws, &map)?;
+    let _r = replies.as_ref().map(|r| attach(&ws, r)).transpose()?;
     ctx.announce_ready()?;
     tracing::info!(
         zid = node.zid(),
@@ -146,6 +156,13 @@ fn serve(ctx: ServiceContext, run_dir: &std::path::Path) -> Result<()> {
         poses.clear_wakeups();
         while let Some(p) = poses.next()? {
             outputs.on_pose(&p)?;
+        }
+        map.clear_wakeups();
+        while let Some(sample) = map.next_sample()? {
+            outputs.on_map(sample.user_header(), sample.payload())?;
+        }
+        if let (Some(s), Some(replies)) = (&mut services, &replies) {
+            s.poll(replies, Instant::now())?;
         }
         if stopping {
             // The supervisor stops the bridge after the SLAM: what the SLAM

@@ -67,9 +67,22 @@ pub const CAMERA_INFO: MsgType = MsgType {
     hash: "RIHS01_b3dfd68ff46c9d56c80fd3bd4ed22c7a4ddce8c8348f2f59c299e73118e7e275",
 };
 
-/// Every type the bridge publishes or reads (the interop test checks each
-/// hash against rosbags').
-pub const ALL_TYPES: [MsgType; 9] = [
+pub const POINT_CLOUD2: MsgType = MsgType {
+    ros: "sensor_msgs/msg/PointCloud2",
+    dds: "sensor_msgs::msg::dds_::PointCloud2_",
+    hash: "RIHS01_9198cabf7da3796ae6fe19c4cb3bdd3525492988c70522628af5daa124bae2b5",
+};
+pub const OCCUPANCY_GRID: MsgType = MsgType {
+    ros: "nav_msgs/msg/OccupancyGrid",
+    dds: "nav_msgs::msg::dds_::OccupancyGrid_",
+    hash: "RIHS01_8d348150c12913a31ee0ec170fbf25089e4745d17035792a1ba94d6f0bc0cfc7",
+};
+
+/// Every message type the bridge publishes or reads (the interop test
+/// checks each hash against rosbags').
+pub const ALL_TYPES: [MsgType; 11] = [
+    POINT_CLOUD2,
+    OCCUPANCY_GRID,
     ODOMETRY,
     TF_MESSAGE,
     PATH,
@@ -387,6 +400,115 @@ pub fn diagnostic_array(h: &Header, status: &[DiagnosticStatus]) -> Vec<u8> {
 pub fn string(data: &str) -> Vec<u8> {
     let mut w = Writer::new();
     w.string(data);
+    w.finish()
+}
+
+/// `sensor_msgs/PointField.datatype` of a 32-bit float.
+const POINT_FIELD_FLOAT32: u8 = 7;
+/// Bytes of one cloud point: x y z and the colour packed as PCL does
+/// (0x00RRGGBB in a float's bits: RViz's and Foxglove's "rgb" field).
+pub const CLOUD_POINT_STEP: usize = 16;
+
+/// A cloud point: position and colour.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CloudPoint {
+    pub position: [f32; 3],
+    pub rgb: [u8; 3],
+}
+
+/// `sensor_msgs/PointCloud2`, unordered (height 1), fields x y z rgb.
+pub fn point_cloud2(h: &Header, points: &[CloudPoint]) -> Vec<u8> {
+    let mut w = Writer::new();
+    header(&mut w, h);
+    w.u32(1);
+    w.u32(points.len() as u32);
+    w.len(4);
+    for (i, name) in ["x", "y", "z", "rgb"].iter().enumerate() {
+        w.string(name);
+        w.u32(i as u32 * 4);
+        w.u8(POINT_FIELD_FLOAT32);
+        w.u32(1);
+    }
+    w.u8(0); // little endian
+    w.u32(CLOUD_POINT_STEP as u32);
+    w.u32((CLOUD_POINT_STEP * points.len()) as u32);
+    let mut data = Vec::with_capacity(CLOUD_POINT_STEP * points.len());
+    for p in points {
+        for v in p.position {
+            data.extend_from_slice(&v.to_le_bytes());
+        }
+        let [r, g, b] = p.rgb;
+        data.extend_from_slice(&u32::from_be_bytes([0, r, g, b]).to_le_bytes());
+    }
+    w.bytes(&data);
+    w.u8(1); // is_dense: no invalid point
+    w.finish()
+}
+
+/// `nav_msgs/OccupancyGrid`: `cells` row-major from the cell at `origin`,
+/// -1 unknown, 0 free, 100 occupied.
+pub struct Grid<'a> {
+    pub header: Header,
+    pub resolution: f32,
+    pub width: u32,
+    pub height: u32,
+    /// The pose of cell (0, 0)'s corner in the header's frame.
+    pub origin: RosPose,
+    pub cells: &'a [i8],
+}
+
+pub fn occupancy_grid(g: &Grid) -> Vec<u8> {
+    let mut w = Writer::new();
+    header(&mut w, &g.header);
+    // info.map_load_time: when this grid was made, its header's stamp.
+    w.i32(g.header.stamp.sec);
+    w.u32(g.header.stamp.nanosec);
+    w.f32(g.resolution);
+    w.u32(g.width);
+    w.u32(g.height);
+    pose(&mut w, &g.origin);
+    let bytes: Vec<u8> = g.cells.iter().map(|&c| c as u8).collect();
+    w.bytes(&bytes);
+    w.finish()
+}
+
+// The services (rmw_zenoh: a queryable on the service's key expression,
+// requests and responses in CDR like messages).
+
+pub const TRIGGER: MsgType = MsgType {
+    ros: "std_srvs/srv/Trigger",
+    dds: "std_srvs::srv::dds_::Trigger_",
+    hash: "RIHS01_eeff2cd6fa5ad9d27cdf4dec64818317839b62f212a91e6b5304b634b2062c5f",
+};
+pub const SET_BOOL: MsgType = MsgType {
+    ros: "std_srvs/srv/SetBool",
+    dds: "std_srvs::srv::dds_::SetBool_",
+    hash: "RIHS01_abe9e4bb6b41b40e6789712c00ec8871923e089af3f667a79992a428cff2da0a",
+};
+/// Ours (`docs/ros2/dynslam_interfaces`: `string name` ->
+/// `bool success, string message`): no standard service takes a name.
+pub const SAVE_MAP: MsgType = MsgType {
+    ros: "dynslam_interfaces/srv/SaveMap",
+    dds: "dynslam_interfaces::srv::dds_::SaveMap_",
+    hash: "RIHS01_bdbc61beccb17cf3a949bee02596aa8dfb03c530bdf3c09d84924998c05d2dd7",
+};
+
+/// `std_srvs/SetBool` request: its `data`.
+pub fn read_set_bool_request(message: &[u8]) -> Result<bool, CdrError> {
+    let mut r = Reader::new(message)?;
+    Ok(r.u8("data")? != 0)
+}
+
+/// `dynslam_interfaces/SaveMap` request: its `name`.
+pub fn read_save_map_request(message: &[u8]) -> Result<String, CdrError> {
+    Reader::new(message)?.string("name")
+}
+
+/// The response of all three services: `bool success, string message`.
+pub fn success_message_response(success: bool, message: &str) -> Vec<u8> {
+    let mut w = Writer::new();
+    w.u8(success as u8);
+    w.string(message);
     w.finish()
 }
 

@@ -7,6 +7,7 @@ use zenoh::handlers::{RingChannel, RingChannelHandler};
 use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::{Publisher, Subscriber};
 use zenoh::qos::{CongestionControl, Priority};
+use zenoh::query::{Query, Queryable};
 use zenoh::sample::Sample;
 use zenoh::{Session, Wait};
 
@@ -151,6 +152,99 @@ impl RosNode {
             publisher,
             _token: token,
         })
+    }
+}
+
+impl RosNode {
+    /// A service server on `name` (resolved under the node's namespace):
+    /// rmw_zenoh's clients query the service's key expression and take the
+    /// reply as the response.
+    pub fn service(&mut self, name: &str, ty: MsgType) -> Result<RosService> {
+        let fq = rmw::resolve(&self.info.namespace, name);
+        let key = rmw::topic_key(self.info.domain, &fq, &ty);
+        let entity = self.next_entity;
+        self.next_entity += 1;
+        let qos = rmw::qos_token(Durability::Volatile, SERVICE_QUEUE as u32);
+        let token_key = self.info.service_token(entity, &fq, &ty, &qos);
+        let queryable = self
+            .session
+            .declare_queryable(key.clone())
+            // rmw_zenoh's clients ask complete queryables only.
+            .complete(true)
+            .with(RingChannel::new(SERVICE_QUEUE))
+            .wait()
+            .map_err(|e| anyhow!("cannot declare the service {fq} ({key}): {e}"))?;
+        let token = self
+            .session
+            .liveliness()
+            .declare_token(token_key)
+            .wait()
+            .map_err(|e| anyhow!("cannot declare the liveliness token of {fq}: {e}"))?;
+        Ok(RosService {
+            name: fq,
+            key,
+            queryable,
+            _token: token,
+        })
+    }
+}
+
+/// Requests a service queues between two looks (more are dropped: the
+/// client times out).
+const SERVICE_QUEUE: usize = 16;
+
+/// A ROS 2 service server.
+pub struct RosService {
+    pub name: String,
+    key: String,
+    queryable: Queryable<RingChannelHandler<Query>>,
+    _token: LivelinessToken,
+}
+
+/// One request: its CDR payload and what the response must carry back.
+pub struct ServiceRequest {
+    query: Query,
+    pub payload: Vec<u8>,
+    /// The client's sequence number and gid (from the request's
+    /// attachment; 0 and zeros when it had none).
+    sequence_number: i64,
+    client_gid: [u8; 16],
+}
+
+impl RosService {
+    pub fn next(&self) -> Option<ServiceRequest> {
+        let query = self.queryable.try_recv().ok()??;
+        let payload = query
+            .payload()
+            .map(|p| p.to_bytes().into_owned())
+            .unwrap_or_default();
+        let (sequence_number, _, client_gid) = query
+            .attachment()
+            .and_then(|a| rmw::parse_attachment(&a.to_bytes()))
+            .unwrap_or((0, 0, [0; 16]));
+        Some(ServiceRequest {
+            query,
+            payload,
+            sequence_number,
+            client_gid,
+        })
+    }
+
+    /// Answers `request` with `cdr`; the reply's attachment carries the
+    /// request's sequence number and the client's gid back (rmw_zenoh
+    /// matches responses to requests by them).
+    pub fn respond(&self, request: ServiceRequest, cdr: Vec<u8>) -> Result<()> {
+        let now = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_nanos() as i64)
+            .unwrap_or(0);
+        let attachment = rmw::attachment(request.sequence_number, now, &request.client_gid);
+        request
+            .query
+            .reply(self.key.clone(), cdr)
+            .attachment(attachment)
+            .wait()
+            .map_err(|e| anyhow!("cannot answer a request on {}: {e}", self.name))
     }
 }
 

@@ -17,12 +17,14 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result};
 use nalgebra::Isometry3;
 use pipeline::config::BridgeConfig;
+use pipeline::views::MapView;
 use serde::{Deserialize, Serialize};
-use shared_types::{mask_flags, MaskSource, MasksHeader, Pose, Track, TrackState};
+use shared_types::{mask_flags, MapHeader, MaskSource, MasksHeader, Pose, Track, TrackState};
 
 use crate::frames::{self, Frames};
+use crate::grid::{self, GridParams};
 use crate::msgs::{
-    self, level, DiagnosticStatus, Header, Odometry, RosPose, Time, TransformStamped,
+    self, level, CloudPoint, DiagnosticStatus, Header, Odometry, RosPose, Time, TransformStamped,
 };
 use crate::node::{RosNode, RosPublisher};
 use crate::odom::OdomBuffer;
@@ -60,6 +62,10 @@ fn diagonal(v: f64) -> [f64; 36] {
     c
 }
 
+/// Cells on a side of the occupancy grid at most (at 5 cm, 200 m): a
+/// stray far point cuts the grid rather than inflating the message.
+const GRID_MAX_SIDE: usize = 4000;
+
 /// A frame's masks waiting for its Track.
 struct PendingMasks {
     seq: u64,
@@ -96,6 +102,9 @@ pub struct Outputs {
     /// `mask_image`: the masks of the frames SLAM has not answered yet,
     /// oldest first.
     masks: Option<(RosPublisher, Vec<PendingMasks>)>,
+    /// `map_cloud` and `grid`: the map's points, the occupancy grid.
+    map_cloud: Option<RosPublisher>,
+    grid: Option<(RosPublisher, GridParams)>,
     path_poses: Vec<(Time, RosPose)>,
     keyframe_poses: Vec<RosPose>,
     path_file: std::fs::File,
@@ -169,6 +178,27 @@ impl Outputs {
         } else {
             None
         };
+        // The map's topics are latched in ROS (transient local): a viewer
+        // or Nav2 opened later gets the last one.
+        let latched = Durability::TransientLocal;
+        let map_cloud = cfg
+            .map_cloud
+            .then(|| publisher(&cfg.map_cloud_topic, msgs::POINT_CLOUD2, latched, 1, low))
+            .transpose()?;
+        let grid = cfg
+            .grid
+            .then(|| publisher(&cfg.grid_topic, msgs::OCCUPANCY_GRID, latched, 1, low))
+            .transpose()?
+            .map(|p| {
+                let params = GridParams {
+                    resolution: cfg.grid_resolution,
+                    min_height: cfg.grid_min_height,
+                    max_height: cfg.grid_max_height,
+                    min_points: cfg.grid_min_points,
+                    max_side: GRID_MAX_SIDE,
+                };
+                (p, params)
+            });
         let frames = Frames::new(
             &cfg.world_frame,
             frames::mounting(cfg.camera_xyz, cfg.camera_rpy),
@@ -189,6 +219,8 @@ impl Outputs {
             slam_state,
             diagnostics,
             masks,
+            map_cloud,
+            grid,
             path_poses,
             keyframe_poses,
             path_file,
@@ -342,6 +374,86 @@ impl Outputs {
             let h = self.header(stamp, &self.cfg.map_frame);
             self.keyframes
                 .publish(msgs::pose_array(&h, &self.keyframe_poses))?;
+        }
+        Ok(())
+    }
+
+    /// A map snapshot from the SLAM: the keyframes as the map holds them
+    /// now (moved by bundle adjustment and closed loops, culled ones gone),
+    /// the point cloud and the occupancy grid.
+    pub fn on_map(&mut self, h: &MapHeader, payload: &[u8]) -> Result<()> {
+        let view = match MapView::new(h, payload) {
+            Ok(v) => v,
+            Err(e) => {
+                self.refused += 1;
+                tracing::warn!("map snapshot dropped: {e:#}");
+                return Ok(());
+            }
+        };
+        let Some(cameras) = view
+            .keyframes()
+            .map(|k| frames::from_tum(&k))
+            .collect::<Option<Vec<_>>>()
+        else {
+            self.refused += 1;
+            tracing::warn!(
+                "map snapshot {} dropped: a keyframe pose is not a pose",
+                h.version
+            );
+            return Ok(());
+        };
+        let header = self.header(Time::from_secs(h.stamp), &self.cfg.map_frame);
+        self.keyframe_poses = cameras
+            .iter()
+            .map(|c| frames::to_ros(&self.frames.map_t_base(c)))
+            .collect();
+        self.keyframes
+            .publish(msgs::pose_array(&header, &self.keyframe_poses))?;
+        if self.map_cloud.is_none() && self.grid.is_none() {
+            return Ok(());
+        }
+        let map_t_world = self.frames.map_t_world.cast::<f32>();
+        let points: Vec<(CloudPoint, usize)> = view
+            .points()
+            .map(|p| {
+                let q = map_t_world * nalgebra::Point3::from(p.position);
+                let point = CloudPoint {
+                    position: [q.x, q.y, q.z],
+                    rgb: p.colour,
+                };
+                (point, p.keyframe as usize)
+            })
+            .collect();
+        if let Some(cloud) = &mut self.map_cloud {
+            let cloud_points: Vec<CloudPoint> = points.iter().map(|(p, _)| *p).collect();
+            cloud.publish(msgs::point_cloud2(&header, &cloud_points))?;
+        }
+        if let Some((publisher, params)) = &mut self.grid {
+            let viewpoints: Vec<[f64; 3]> = cameras
+                .iter()
+                .map(|c| {
+                    let t = (self.frames.map_t_world * c).translation;
+                    [t.x, t.y, t.z]
+                })
+                .collect();
+            let cells: Vec<([f64; 3], usize)> = points
+                .iter()
+                .map(|(p, k)| (p.position.map(f64::from), *k))
+                .collect();
+            if let Some(g) = grid::project(&cells, &viewpoints, params) {
+                let origin = RosPose {
+                    position: [g.origin[0], g.origin[1], 0.0],
+                    orientation: [0.0, 0.0, 0.0, 1.0],
+                };
+                publisher.publish(msgs::occupancy_grid(&msgs::Grid {
+                    header,
+                    resolution: params.resolution as f32,
+                    width: g.width as u32,
+                    height: g.height as u32,
+                    origin,
+                    cells: &g.cells,
+                }))?;
+            }
         }
         Ok(())
     }

@@ -105,10 +105,24 @@ impl NodeInfo {
         ty: &MsgType,
         qos: &str,
     ) -> String {
+        self.endpoint_token(entity_id, "MP", fq_topic, ty, qos)
+    }
+    /// A service server's token (`ros2 service list`).
+    pub fn service_token(&self, entity_id: u32, fq_name: &str, ty: &MsgType, qos: &str) -> String {
+        self.endpoint_token(entity_id, "SS", fq_name, ty, qos)
+    }
+    fn endpoint_token(
+        &self,
+        entity_id: u32,
+        kind: &str,
+        fq_name: &str,
+        ty: &MsgType,
+        qos: &str,
+    ) -> String {
         format!(
             "{}/{}/{}/{}/{qos}",
-            self.prefix(entity_id, "MP"),
-            mangle(fq_topic),
+            self.prefix(entity_id, kind),
+            mangle(fq_name),
             ty.dds,
             ty.hash
         )
@@ -137,6 +151,17 @@ pub fn attachment(sequence_number: i64, source_timestamp_ns: i64, gid: &[u8; 16]
     a.push(16);
     a.extend_from_slice(gid);
     a
+}
+
+/// An attachment's parts: sequence number, source timestamp, gid. None
+/// when it is not rmw_zenoh's 33 bytes.
+pub fn parse_attachment(a: &[u8]) -> Option<(i64, i64, [u8; 16])> {
+    if a.len() != 33 || a[16] != 16 {
+        return None;
+    }
+    let seq = i64::from_le_bytes(a[..8].try_into().ok()?);
+    let ts = i64::from_le_bytes(a[8..16].try_into().ok()?);
+    Some((seq, ts, a[17..33].try_into().ok()?))
 }
 
 #[cfg(test)]
@@ -190,5 +215,10 @@ mod tests {
         assert_eq!(a.len(), 33);
         assert_eq!(&a[..8], &7i64.to_le_bytes());
         assert_eq!(a[16], 16);
+        assert_eq!(parse_attachment(&a), Some((7, 1_000, g)));
+        assert_eq!(parse_attachment(&a[..32]), None);
+        let mut wrong = a.clone();
+        wrong[16] = 8;
+        assert_eq!(parse_attachment(&wrong), None);
     }
 }

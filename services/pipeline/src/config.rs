@@ -88,6 +88,28 @@ pub struct BridgeConfig {
     /// Seconds between publications of the path and of the diagnostics.
     pub path_period_s: f64,
     pub diagnostics_period_s: f64,
+    /// The map's points as `sensor_msgs/PointCloud2` on `map_cloud_topic`,
+    /// and the keyframes as the map holds them (moved by bundle adjustment
+    /// and loops), after keyframes, at most once per `map_period_s` (and
+    /// after every closed loop).
+    pub map_cloud: bool,
+    pub map_cloud_topic: String,
+    pub map_period_s: f64,
+    /// A `nav_msgs/OccupancyGrid` (Nav2) on `grid_topic` with each map:
+    /// points between `grid_min_height` and `grid_max_height` above the
+    /// map frame's z = 0 are obstacles (`world_frame = "ros"` only).
+    pub grid: bool,
+    pub grid_topic: String,
+    pub grid_resolution: f64,
+    pub grid_min_height: f64,
+    pub grid_max_height: f64,
+    /// Points a cell needs to be occupied.
+    pub grid_min_points: u32,
+    /// The services `save_map`, `reset` and `set_localization_mode` (off
+    /// unless enabled: they change the map from the network).
+    pub services: bool,
+    /// Where `save_map` writes (a name from the network never leaves it).
+    pub maps_dir: PathBuf,
 }
 
 impl Default for BridgeConfig {
@@ -123,6 +145,17 @@ impl Default for BridgeConfig {
             diagnostics_topic: "/diagnostics".into(),
             path_period_s: 1.0,
             diagnostics_period_s: 1.0,
+            map_cloud: true,
+            map_cloud_topic: "dynslam/map_points".into(),
+            map_period_s: 1.0,
+            grid: true,
+            grid_topic: "map".into(),
+            grid_resolution: 0.05,
+            grid_min_height: 0.1,
+            grid_max_height: 1.5,
+            grid_min_points: 2,
+            services: false,
+            maps_dir: PathBuf::from("maps"),
         }
     }
 }
@@ -180,6 +213,8 @@ impl BridgeConfig {
             ("bridge.tf_topic", &self.tf_topic),
             ("bridge.tf_static_topic", &self.tf_static_topic),
             ("bridge.diagnostics_topic", &self.diagnostics_topic),
+            ("bridge.map_cloud_topic", &self.map_cloud_topic),
+            ("bridge.grid_topic", &self.grid_topic),
         ] {
             ros_name(key, topic.strip_prefix('/').unwrap_or(topic), true)?;
         }
@@ -207,6 +242,41 @@ impl BridgeConfig {
             3600.0,
             "a period in seconds",
         )?;
+        in_range(
+            "bridge.map_period_s",
+            self.map_period_s,
+            0.05,
+            3600.0,
+            "a period in seconds",
+        )?;
+        in_range(
+            "bridge.grid_resolution",
+            self.grid_resolution,
+            0.005,
+            10.0,
+            "metres per cell",
+        )?;
+        for (key, v) in [
+            ("bridge.grid_min_height", self.grid_min_height),
+            ("bridge.grid_max_height", self.grid_max_height),
+        ] {
+            in_range(key, v, -100.0, 100.0, "a height in metres")?;
+        }
+        if self.grid_min_height >= self.grid_max_height {
+            return Err(format!(
+                "keys `bridge.grid_min_height` = {} and `bridge.grid_max_height` = {}: the band is empty (min must be below max)",
+                self.grid_min_height, self.grid_max_height
+            ));
+        }
+        if self.grid && self.world_frame != "ros" {
+            return Err(format!(
+                "key `bridge.grid`: the occupancy grid needs a floor, i.e. `bridge.world_frame = \"ros\"` (it is \"{}\"); or set bridge.grid = false",
+                self.world_frame
+            ));
+        }
+        if self.maps_dir.as_os_str().is_empty() {
+            return Err("key `bridge.maps_dir`: empty; name the folder save_map writes to".into());
+        }
         Ok(())
     }
 }

@@ -68,13 +68,26 @@ pub fn qos(topic: Topic) -> Qos {
             borrowed: 2,
             history: 16,
         },
-        Topic::Lifecycle | Topic::Control => Qos {
+        Topic::Lifecycle | Topic::Control | Topic::SlamCommands | Topic::SlamReplies => Qos {
             buffer: 16,
             borrowed: 2,
             history: 0,
         },
+        // Only the newest map matters; a restarted bridge gets it at once.
+        Topic::Map => Qos {
+            buffer: 1,
+            borrowed: 1,
+            history: 1,
+        },
     }
 }
+
+/// Room of a map snapshot sample (the bridge's map topics): the points
+/// beyond it are left out (and counted).
+pub const MAX_MAP_KEYFRAMES: usize = 4096;
+pub const MAX_MAP_POINTS: usize = 100_000;
+pub const MAX_MAP_BYTES: usize = MAX_MAP_KEYFRAMES * shared_types::MAP_KEYFRAME_BYTES
+    + MAX_MAP_POINTS * shared_types::MAP_POINT_BYTES;
 
 /// Upper bounds per service; restarts briefly leave a dead process's ports
 /// registered until the dead-node cleanup runs, hence the margin.
@@ -99,6 +112,12 @@ pub fn reserved_shm_bytes(max_frame_bytes: usize, max_mask_bytes: usize) -> u64 
         + MASK_PUBLISHERS * samples(Topic::Masks) * max_mask_bytes as u64
 }
 
+/// Bytes of shared memory the map snapshots reserve (with the bridge).
+pub fn reserved_map_shm_bytes() -> u64 {
+    let q = qos(Topic::Map);
+    (MAX_SUBSCRIBERS * (q.buffer + q.borrowed) + q.history + 1) as u64 * MAX_MAP_BYTES as u64
+}
+
 /// Free bytes of the file system at `dir` (statvfs), None if unknown.
 pub fn free_bytes(dir: &Path) -> Option<u64> {
     use std::os::unix::ffi::OsStrExt;
@@ -115,7 +134,12 @@ pub fn free_bytes(dir: &Path) -> Option<u64> {
 /// after the start.
 pub fn check_shm_capacity(config: &crate::config::PipelineConfig) -> Result<()> {
     let (max_width, max_height) = (config.run.max_width, config.run.max_height);
-    let need = reserved_shm_bytes(config.max_frame_bytes(), config.max_mask_bytes());
+    let map = if config.bridge.enabled {
+        reserved_map_shm_bytes()
+    } else {
+        0
+    };
+    let need = reserved_shm_bytes(config.max_frame_bytes(), config.max_mask_bytes()) + map;
     let shm = Path::new("/dev/shm");
     let Some(free) = free_bytes(shm) else {
         return Ok(()); // no /dev/shm to ask (iceoryx2 then reports its own error)

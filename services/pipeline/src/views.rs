@@ -126,3 +126,156 @@ impl<'a> MasksView<'a> {
         MaskSource::from_u32(self.header.source).unwrap_or(MaskSource::None)
     }
 }
+
+/// One point of a map snapshot ([`shared_types::MapHeader`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MapPointEntry {
+    /// World position (the SLAM's world frame, metres).
+    pub position: [f32; 3],
+    pub colour: [u8; 3],
+    /// Index (in the snapshot) of the keyframe that observed it first.
+    pub keyframe: u32,
+}
+
+impl MapPointEntry {
+    fn write(&self, out: &mut [u8]) {
+        for (i, v) in self.position.iter().enumerate() {
+            out[i * 4..i * 4 + 4].copy_from_slice(&v.to_ne_bytes());
+        }
+        out[12..15].copy_from_slice(&self.colour);
+        out[15] = 0;
+        out[16..20].copy_from_slice(&self.keyframe.to_ne_bytes());
+    }
+
+    fn read(b: &[u8]) -> Self {
+        let f = |i: usize| f32::from_ne_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
+        Self {
+            position: [f(0), f(4), f(8)],
+            colour: [b[12], b[13], b[14]],
+            keyframe: u32::from_ne_bytes([b[16], b[17], b[18], b[19]]),
+        }
+    }
+}
+
+/// Writes a snapshot's keyframes (world-from-camera tx ty tz qx qy qz qw)
+/// and points into `payload`, which holds exactly
+/// [`shared_types::MapHeader::payload_len`] bytes for them.
+pub fn write_map(payload: &mut [u8], keyframes: &[[f64; 7]], points: &[MapPointEntry]) {
+    use shared_types::{MAP_KEYFRAME_BYTES, MAP_POINT_BYTES};
+    let (kf_bytes, point_bytes) = payload.split_at_mut(keyframes.len() * MAP_KEYFRAME_BYTES);
+    for (k, out) in keyframes
+        .iter()
+        .zip(kf_bytes.chunks_exact_mut(MAP_KEYFRAME_BYTES))
+    {
+        for (i, v) in k.iter().enumerate() {
+            out[i * 8..i * 8 + 8].copy_from_slice(&v.to_ne_bytes());
+        }
+    }
+    for (p, out) in points
+        .iter()
+        .zip(point_bytes.chunks_exact_mut(MAP_POINT_BYTES))
+    {
+        p.write(out);
+    }
+}
+
+/// A map snapshot read in place.
+#[derive(Clone, Copy)]
+pub struct MapView<'a> {
+    pub header: &'a shared_types::MapHeader,
+    keyframes: &'a [u8],
+    points: &'a [u8],
+}
+
+impl<'a> MapView<'a> {
+    /// Checks that the payload holds what the header announces and that
+    /// every point names a keyframe of the snapshot.
+    pub fn new(header: &'a shared_types::MapHeader, payload: &'a [u8]) -> Result<Self> {
+        let need = header.payload_len();
+        if payload.len() < need {
+            bail!(
+                "map snapshot {}: payload has {} bytes, header announces {} keyframes and {} points = {need} bytes",
+                header.version,
+                payload.len(),
+                header.keyframes,
+                header.points
+            );
+        }
+        let split = header.keyframes as usize * shared_types::MAP_KEYFRAME_BYTES;
+        let view = Self {
+            header,
+            keyframes: &payload[..split],
+            points: &payload[split..need],
+        };
+        if let Some(p) = view.points().find(|p| p.keyframe >= header.keyframes) {
+            bail!(
+                "map snapshot {}: a point names keyframe {} of {}",
+                header.version,
+                p.keyframe,
+                header.keyframes
+            );
+        }
+        Ok(view)
+    }
+
+    /// World-from-camera poses: tx ty tz qx qy qz qw.
+    pub fn keyframes(&self) -> impl Iterator<Item = [f64; 7]> + 'a {
+        self.keyframes
+            .chunks_exact(shared_types::MAP_KEYFRAME_BYTES)
+            .map(|b| {
+                let mut k = [0.0; 7];
+                for (i, v) in k.iter_mut().enumerate() {
+                    *v = f64::from_ne_bytes(b[i * 8..i * 8 + 8].try_into().unwrap_or_default());
+                }
+                k
+            })
+    }
+
+    pub fn points(&self) -> impl Iterator<Item = MapPointEntry> + 'a {
+        self.points
+            .chunks_exact(shared_types::MAP_POINT_BYTES)
+            .map(MapPointEntry::read)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use shared_types::MapHeader;
+
+    #[test]
+    fn a_map_snapshot_round_trips_and_a_bad_one_is_refused() {
+        let keyframes = [[1.0, 2.0, 3.0, 0.0, 0.0, 0.0, 1.0], [4.0; 7]];
+        let points = [
+            MapPointEntry {
+                position: [0.5, -1.0, 2.0],
+                colour: [1, 2, 3],
+                keyframe: 1,
+            },
+            MapPointEntry {
+                position: [9.0, 8.0, 7.0],
+                colour: [4, 5, 6],
+                keyframe: 0,
+            },
+        ];
+        let mut header = MapHeader {
+            version: 3,
+            keyframes: 2,
+            points: 2,
+            ..Default::default()
+        };
+        let mut payload = vec![0u8; header.payload_len()];
+        write_map(&mut payload, &keyframes, &points);
+        let view = MapView::new(&header, &payload).unwrap();
+        assert_eq!(view.keyframes().collect::<Vec<_>>(), keyframes);
+        assert_eq!(view.points().collect::<Vec<_>>(), points);
+        assert!(MapView::new(&header, &payload[..payload.len() - 1])
+            .err()
+            .unwrap()
+            .to_string()
+            .contains("2 points"));
+        header.keyframes = 1; // the first point names keyframe 1
+        let short = &payload[56..];
+        assert!(MapView::new(&header, short).is_err());
+    }
+}

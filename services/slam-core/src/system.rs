@@ -20,6 +20,7 @@ use crate::initialization::{
 };
 use crate::io::map_file::{MapFile, MapFileError};
 use crate::local_mapping::checkpoint::{CheckpointPolicy, Checkpointer};
+use crate::local_mapping::snapshot::{MapSnapshot, SnapshotRequest, SnapshotSlot};
 use crate::local_mapping::{map_keyframe, LocalMapper};
 use crate::loop_closing::thread::LoopClosing;
 use crate::loop_closing::LoopClosure;
@@ -148,6 +149,13 @@ pub struct System {
     localize_only: bool,
     /// Writes the map every N keyframes off the frame path (None: never).
     checkpointer: Option<Checkpointer>,
+    /// Map snapshots for the outside: where they are left, at most one per
+    /// period, and when the last was asked for (None: none asked).
+    snapshots: Option<(
+        SnapshotSlot,
+        std::time::Duration,
+        Option<std::time::Instant>,
+    )>,
     /// Keyframes inserted since the map was made or loaded.
     keyframes_inserted: usize,
     /// The map was started by this system (not loaded: a loaded map is
@@ -246,6 +254,7 @@ impl System {
             loop_reports: Vec::new(),
             localize_only: false,
             checkpointer: None,
+            snapshots: None,
             keyframes_inserted: 0,
             map_started_here: true,
             lost_in_a_row: (0, 0.0),
@@ -301,6 +310,18 @@ impl System {
                 .map_err(|e| tracing::warn!("checkpoint writer not started: {e}"))
                 .ok()
         });
+    }
+
+    /// Map snapshots ([`MapSnapshot`]) after keyframes, at most one per
+    /// `period` and after every closed loop, taken off the frame path;
+    /// [`System::take_map_snapshot`] hands out the newest.
+    pub fn enable_map_snapshots(&mut self, period: std::time::Duration) {
+        self.snapshots = Some((SnapshotSlot::default(), period, None));
+    }
+
+    /// The newest map snapshot not handed out yet.
+    pub fn take_map_snapshot(&mut self) -> Option<MapSnapshot> {
+        self.snapshots.as_ref()?.0.take()
     }
 
     /// The map as a file's contents (once local mapping has given it back
@@ -910,9 +931,24 @@ impl System {
             .as_ref()
             .filter(|c| self.keyframes_inserted.is_multiple_of(c.every_keyframes()))
             .map(Checkpointer::sender);
+        let snapshot = self.snapshots.as_mut().map(|(slot, period, last)| {
+            let due = last.is_none_or(|t| t.elapsed() >= *period);
+            if due {
+                *last = Some(std::time::Instant::now());
+            }
+            SnapshotRequest {
+                slot: slot.clone(),
+                due,
+            }
+        });
         self.mapped_keyframe = Some((id, self.map.keyframes[id].pose_cw));
         if let Some(mapper) = &self.mapper {
-            match mapper.submit(std::mem::take(&mut self.map), id, checkpoint.clone()) {
+            match mapper.submit(
+                std::mem::take(&mut self.map),
+                id,
+                checkpoint.clone(),
+                snapshot.clone(),
+            ) {
                 Ok(()) => {
                     self.mapping = Mapping::OnThread;
                     return;
@@ -934,6 +970,9 @@ impl System {
         );
         if let Some(to_writer) = checkpoint {
             to_writer.offer(&self.map);
+        }
+        if let Some(request) = snapshot {
+            request.fulfil(&self.map, id, &report);
         }
         self.mapping_ms = report.ms;
         self.mapping = Mapping::Inline(report);

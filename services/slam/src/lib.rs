@@ -2,9 +2,11 @@
 //! implementation ([`tracker::Tracker`]), when a frame may become a keyframe
 //! ([`keyframe_timing`]), the `orb-rgbd` backend over the
 //! SLAM core (the `slam-core` crate, which has no IPC in it), the
-//! `scripted` test double, `loops.csv`, and the conversions between the pipeline's
+//! `scripted` test double, `loops.csv`, what it shares with the ROS 2
+//! bridge ([`bridge_link`]), and the conversions between the pipeline's
 //! configuration and wire types and the core's own.
 
+pub mod bridge_link;
 pub mod convert;
 pub mod keyframe_timing;
 pub mod loops_csv;

@@ -23,6 +23,7 @@ use shared_types::{
     frame_flags, mask_flags, FrameHeader, MaskSource, MasksHeader, Pose, Route, RouteKind,
     ServiceKind, StageStamps, Track, TrackState,
 };
+use slam::bridge_link::BridgeLink;
 use slam::keyframe_timing::KeyframeFacts;
 use slam::rgbd_tracker::{MapFiles, RgbdTracker};
 use slam::scripted::ScriptedTracker;
@@ -170,10 +171,12 @@ fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
     let routes = ctx.transport.receiver::<Route>(Topic::Routes)?;
     let tracks = ctx.transport.sender::<Track>(Topic::Tracks)?;
     let poses = ctx.transport.sender::<Pose>(Topic::Poses)?;
+    let (mut bridge, commands) = BridgeLink::open(&ctx)?.unzip();
     let ws = waitset()?;
     let _a = attach(&ws, &frames)?;
     let _b = attach(&ws, &masks)?;
     let _c = attach(&ws, &routes)?;
+    let _d = commands.as_ref().map(|c| attach(&ws, c)).transpose()?;
     ctx.announce_ready()?;
     tracing::info!("slam ready with tracker '{}'", tracker.name());
 
@@ -191,7 +194,16 @@ fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
         last_moved: None,
     };
     loop {
-        if wait(&ws, Duration::from_secs(1))? == Wake::Terminate {
+        // A map being saved for the bridge is answered soon after it is
+        // written.
+        let patience = match &bridge {
+            Some(b) if b.busy() => Duration::from_millis(50),
+            _ => Duration::from_secs(1),
+        };
+        if wait(&ws, patience)? == Wake::Terminate {
+            if let Some(b) = &mut bridge {
+                b.finish()?;
+            }
             // (`finish` inserts a keyframe still waiting for its masks.)
             tracker.finish().map_err(anyhow::Error::msg)?;
             record_loops(&mut *tracker, loops_out)?;
@@ -291,6 +303,12 @@ fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
             tracks.send(track)?;
             poses.send(Pose::of(&track))?;
             record_loops(&mut *tracker, loops_out)?;
+        }
+        if let (Some(b), Some(commands)) = (&mut bridge, &commands) {
+            b.publish_map(&mut *tracker)?;
+            if b.serve(commands, &mut *tracker)?.reset {
+                st.pending_keyframe = None;
+            }
         }
         if let (Some(waiting), Some(last)) = (st.pending_keyframe, st.last) {
             if last.seq > waiting + SEGMENTER_PATIENCE {

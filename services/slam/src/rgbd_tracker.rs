@@ -9,6 +9,7 @@ use shared_types::TrackState;
 use slam_core::io::ply::ColouredPoint;
 use slam_core::io::trajectory::Trajectory;
 use slam_core::local_mapping::checkpoint::CheckpointPolicy;
+use slam_core::local_mapping::snapshot::MapSnapshot;
 use slam_core::loop_closing::LoopClosure;
 use slam_core::{MapFile, MapFileError, System};
 
@@ -30,7 +31,16 @@ pub struct RgbdTracker {
     save: Option<PathBuf>,
     /// Loops already handed out by `take_loops`.
     loops_reported: usize,
+    /// What `reset` builds the new system from.
+    config: PipelineConfig,
+    files: MapFiles,
+    /// Present while localization mode was switched on at run time (a
+    /// restarted process stays in it); beside the checkpoint.
+    localize_marker: Option<PathBuf>,
 }
+
+/// The file that says "localization mode" beside the run's checkpoint.
+const LOCALIZE_MARKER: &str = "localization_mode";
 
 /// Where the map comes from and goes to.
 #[derive(Debug, Clone, Default)]
@@ -86,7 +96,21 @@ impl RgbdTracker {
             }
             None => System::new(params, camera),
         };
-        system.set_localize_only(slam.localize_only);
+        let localize_marker = files
+            .checkpoint
+            .as_ref()
+            .and_then(|c| c.parent())
+            .map(|dir| dir.join(LOCALIZE_MARKER));
+        let switched_on = localize_marker.as_ref().is_some_and(|m| m.exists());
+        if switched_on {
+            tracing::info!("localization mode (switched on before this process restarted)");
+        }
+        system.set_localize_only(slam.localize_only || switched_on);
+        if config.bridge.enabled {
+            system.enable_map_snapshots(std::time::Duration::from_secs_f64(
+                config.bridge.map_period_s,
+            ));
+        }
         let checkpoint = files.checkpoint.clone().filter(|_| !slam.localize_only);
         if let Some(path) = &checkpoint {
             let every = slam.checkpoint_every_keyframes.unwrap_or(0) as usize;
@@ -105,6 +129,9 @@ impl RgbdTracker {
             checkpoint,
             save: files.save.clone(),
             loops_reported: 0,
+            config: config.clone(),
+            files: files.clone(),
+            localize_marker,
         })
     }
 }
@@ -196,6 +223,79 @@ impl Tracker for RgbdTracker {
 
     fn corrected_trajectory(&mut self) -> Option<slam_core::io::trajectory::Trajectory> {
         (!self.system.loops().is_empty()).then(|| self.system.trajectory())
+    }
+
+    fn take_map_snapshot(&mut self) -> Option<(f64, MapSnapshot)> {
+        let snapshot = self.system.take_map_snapshot()?;
+        let stamp = self
+            .system
+            .keyframe_timestamp(snapshot.newest_keyframe)
+            .unwrap_or(0.0);
+        Some((stamp, snapshot))
+    }
+
+    fn loops_closed(&self) -> usize {
+        self.system.loops().len()
+    }
+
+    fn map_file(&mut self) -> Result<MapFile, String> {
+        Ok(self.system.map_file())
+    }
+
+    fn reset(&mut self) -> Result<(), String> {
+        // The checkpoint goes first (its writer ended, so no copy of the
+        // old map comes after): a process killed from here on starts the
+        // new map, never the old one.
+        self.system.set_checkpoint(None);
+        if let Some(c) = &self.files.checkpoint {
+            if let Err(e) = std::fs::remove_file(c) {
+                if e.kind() != std::io::ErrorKind::NotFound {
+                    return Err(format!("cannot remove the checkpoint {}: {e}", c.display()));
+                }
+            }
+        }
+        self.set_localize_only(false)?;
+        let files = MapFiles {
+            load: None,
+            resume_poses: None,
+            ..self.files.clone()
+        };
+        let mut config = self.config.clone();
+        config.services.slam.localize_only = false;
+        let fresh = RgbdTracker::new(&config, &files).map_err(|e| e.to_string())?;
+        *self = RgbdTracker {
+            config: self.config.clone(),
+            ..fresh
+        };
+        tracing::info!("map reset: the next frame starts a new one");
+        Ok(())
+    }
+
+    fn set_localize_only(&mut self, on: bool) -> Result<(), String> {
+        if let Some(marker) = &self.localize_marker {
+            let written = if on {
+                std::fs::write(marker, b"on\n")
+            } else {
+                std::fs::remove_file(marker).or_else(|e| {
+                    if e.kind() == std::io::ErrorKind::NotFound {
+                        Ok(())
+                    } else {
+                        Err(e)
+                    }
+                })
+            };
+            written.map_err(|e| format!("cannot record the mode in {}: {e}", marker.display()))?;
+        }
+        self.system.set_localize_only(on);
+        tracing::info!(
+            "localization mode {}",
+            if on {
+                "on: no keyframe or point is added"
+            } else {
+                "off: mapping"
+            }
+        );
+        Ok(())
     }
 
     fn map_points(&mut self) -> Vec<ColouredPoint> {

@@ -2,6 +2,7 @@
 
 use pipeline::views::{FrameView, MasksView};
 use shared_types::{MaskSource, TrackCounts, TrackState};
+use slam_core::local_mapping::snapshot::MapSnapshot;
 use slam_core::KeyframeTiming;
 
 /// Everything a tracker gets for one frame.
@@ -67,5 +68,30 @@ pub trait Tracker {
     /// The map's points (empty for trackers without a map).
     fn map_points(&mut self) -> Vec<slam_core::io::ply::ColouredPoint> {
         Vec::new()
+    }
+    /// The newest map snapshot taken since the last call (the bridge's map
+    /// topics), with the capture time of its newest keyframe's frame.
+    fn take_map_snapshot(&mut self) -> Option<(f64, MapSnapshot)> {
+        None
+    }
+    /// Loops closed by this process so far.
+    fn loops_closed(&self) -> usize {
+        0
+    }
+
+    // Commands from outside (the bridge's ROS 2 services). The error says
+    // why not, for the caller.
+
+    /// The map as a file's contents, to be written elsewhere.
+    fn map_file(&mut self) -> Result<slam_core::MapFile, String> {
+        Err(format!("the {} backend keeps no map", self.name()))
+    }
+    /// Drops the map: the next frame starts a new one (mapping mode).
+    fn reset(&mut self) -> Result<(), String> {
+        Err(format!("the {} backend keeps no map", self.name()))
+    }
+    /// ORB-SLAM2's localization mode on or off.
+    fn set_localize_only(&mut self, _on: bool) -> Result<(), String> {
+        Err(format!("the {} backend keeps no map", self.name()))
     }
 }

@@ -19,6 +19,7 @@ pub mod bundle;
 pub mod checkpoint;
 pub mod culling;
 pub mod fusion;
+pub mod snapshot;
 pub mod triangulation;
 
 use std::sync::mpsc::{channel, Receiver, Sender};
@@ -31,6 +32,7 @@ use crate::map::{Map, MappingReport};
 use crate::params::SlamParams;
 use crate::place_recognition::Vocabulary;
 use checkpoint::CheckpointSender;
+use snapshot::SnapshotRequest;
 
 impl Map {
     /// Local mapping after keyframe `id` was inserted (its points and
@@ -105,6 +107,8 @@ enum Job {
         keyframe: usize,
         /// Hand a copy of the mapped map to the checkpoint writer.
         checkpoint: Option<CheckpointSender>,
+        /// Leave a snapshot of the mapped map for the outside.
+        snapshot: Option<SnapshotRequest>,
     },
     /// Finish loop closing and merge what it found.
     Flush(Map),
@@ -145,6 +149,7 @@ impl LocalMapper {
                             mut map,
                             keyframe,
                             checkpoint,
+                            snapshot,
                         } => {
                             let report = map_keyframe(
                                 &mut map,
@@ -156,6 +161,9 @@ impl LocalMapper {
                             );
                             if let Some(to_writer) = checkpoint {
                                 to_writer.offer(&map);
+                            }
+                            if let Some(request) = snapshot {
+                                request.fulfil(&map, keyframe, &report);
                             }
                             (map, report)
                         }
@@ -180,13 +188,14 @@ impl LocalMapper {
     }
 
     /// Hands `map` over for keyframe `keyframe` (and, with `checkpoint`,
-    /// for a checkpoint copy once mapped); gives it back if the thread is
-    /// gone.
+    /// for a checkpoint copy once mapped; with `snapshot`, for a snapshot);
+    /// gives it back if the thread is gone.
     pub fn submit(
         &self,
         map: Map,
         keyframe: usize,
         checkpoint: Option<CheckpointSender>,
+        snapshot: Option<SnapshotRequest>,
     ) -> Result<(), Map> {
         match &self.jobs {
             Some(jobs) => jobs
@@ -194,6 +203,7 @@ impl LocalMapper {
                     map,
                     keyframe,
                     checkpoint,
+                    snapshot,
                 })
                 .map_err(|e| e.0.into_map()),
             None => Err(map),

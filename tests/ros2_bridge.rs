@@ -179,7 +179,7 @@ fn ros2_clients_we_did_not_write_get_every_tracked_pose_of_a_real_run() {
         "listen",
         &endpoint,
         &dir.join("listen.json"),
-        &["--grid-band", "-1.0", "1.0"],
+        &["--grid-band", "-1.0", "1.0", "--late-joiner"],
     );
     let msgs = dir.join("msgs");
     let sdk = PyClient::start(
@@ -309,6 +309,20 @@ fn ros2_clients_we_did_not_write_get_every_tracked_pose_of_a_real_run() {
         last_grid["occupied"].as_u64().unwrap() > 20 && last_grid["free"].as_u64().unwrap() > 20,
         "{last_grid}"
     );
+    // The latched topics: a subscriber that joins late gets the last
+    // sample from the publisher's cache at once (rmw_zenoh's transient
+    // local), more than a plain subscriber joining with it.
+    let late = &got["late_joiner"];
+    for topic in ["tf_static", "map", "dynslam/map_points"] {
+        let (cached, plain) = (
+            late[topic]["cached"].as_u64(),
+            late[topic]["plain"].as_u64(),
+        );
+        assert!(
+            cached.unwrap_or(0) >= 1 && cached > plain,
+            "{topic}: {cached:?} from the cache, {plain:?} plain"
+        );
+    }
     let checks = got["grid_checks"].as_array().unwrap();
     assert!(!checks.is_empty(), "no grid with its cloud");
     for c in checks {

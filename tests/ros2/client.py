@@ -182,10 +182,43 @@ def listen(args):
         with lock:
             record["tokens"].append([str(s.kind), str(s.key_expr)])
 
+    def late_joiner():
+        """Once the run is under way, a late subscriber of each latched
+        (transient-local) topic asks the publisher's cache, as rmw_zenoh's
+        transient-local subscriptions do (zenoh's advanced subscriber); a
+        plain subscriber declared at the same moment gets only what is
+        published from then on. Counts what each got within 0.3 s."""
+        import zenoh.ext
+        while not any(k.startswith("/dynslam/map_points") for k in record["samples"]):
+            time.sleep(0.05)
+        time.sleep(0.4)
+        got = {}
+        subs = []
+        for topic in ["tf_static", "map", "dynslam/map_points"]:
+            got[topic] = {"cached": 0, "plain": 0}
+            key = f"{args.domain}/{topic}/**"
+
+            def count(kind, topic=topic):
+                def f(_):
+                    with lock:
+                        got[topic][kind] += 1
+                return f
+            subs.append(session.declare_subscriber(key, count("plain")))
+            subs.append(zenoh.ext.declare_advanced_subscriber(
+                session, key, count("cached"),
+                history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1)))
+        time.sleep(0.3)
+        with lock:
+            record["late_joiner"] = {t: dict(v) for t, v in got.items()}
+        time.sleep(1.0)
+        del subs
+
     subs = [session.declare_subscriber(f"{args.domain}/**", on_sample),
             session.liveliness().declare_subscriber("@ros2_lv/**", on_token, history=True)]
     if args.publish_odom:
         threading.Thread(target=publish_odom, args=(session, args), daemon=True).start()
+    if args.late_joiner:
+        threading.Thread(target=late_joiner, daemon=True).start()
     print("ready", flush=True)
     wait_for_end(args.seconds)
     with lock:
@@ -471,6 +504,8 @@ def main():
     p.add_argument("--grid-band", type=float, nargs=2, default=[0.1, 1.5],
                    help="listen: the run's grid_min_height and grid_max_height")
     p.add_argument("--grid-min-points", type=int, default=2)
+    p.add_argument("--late-joiner", action="store_true",
+                   help="listen: check the latched topics' cache with a late subscriber")
     p.add_argument("--tum", help="play: the TUM folder to play")
     p.add_argument("--limit", type=int, default=300, help="play: frames")
     p.add_argument("--fps", type=float, default=15.0, help="play: frames a second")

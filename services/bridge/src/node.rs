@@ -10,6 +10,7 @@ use zenoh::qos::{CongestionControl, Priority};
 use zenoh::query::{Query, Queryable};
 use zenoh::sample::Sample;
 use zenoh::{Session, Wait};
+use zenoh_ext::{AdvancedPublisher, AdvancedPublisherBuilderExt, CacheConfig};
 
 use crate::msgs::MsgType;
 use crate::rmw::{self, Durability, NodeInfo};
@@ -18,19 +19,25 @@ use crate::rmw::{self, Durability, NodeInfo};
 /// rmw_zenoh's session defaults (a peer that connects to the router, listens
 /// on localhost only, no multicast scouting) with `mode` and `connect`.
 pub fn session_config(cfg: &BridgeConfig) -> Result<zenoh::Config> {
-    if let Some(file) = &cfg.zenoh_config {
-        return zenoh::Config::from_file(file).map_err(|e| {
-            anyhow!(
-                "bridge.zenoh_config {}: not a usable Zenoh configuration: {e}",
-                file.display()
-            )
-        });
-    }
-    let mut c = zenoh::Config::default();
     let set = |c: &mut zenoh::Config, key: &str, value: String| {
         c.insert_json5(key, &value)
             .map_err(|e| anyhow!("Zenoh setting {key} = {value}: {e}"))
     };
+    // The latched topics' cache orders samples by timestamp (rmw_zenoh's
+    // own session config has it on too), whatever the file says.
+    let timestamping = |c: &mut zenoh::Config| set(c, "timestamping/enabled", "true".into());
+    if let Some(file) = &cfg.zenoh_config {
+        let mut c = zenoh::Config::from_file(file).map_err(|e| {
+            anyhow!(
+                "bridge.zenoh_config {}: not a usable Zenoh configuration: {e}",
+                file.display()
+            )
+        })?;
+        timestamping(&mut c)?;
+        return Ok(c);
+    }
+    let mut c = zenoh::Config::default();
+    timestamping(&mut c)?;
     set(&mut c, "mode", format!("{:?}", cfg.mode))?;
     let endpoints: Vec<String> = cfg.connect.iter().map(|e| format!("{e:?}")).collect();
     set(
@@ -129,16 +136,26 @@ impl RosNode {
         let token_key =
             self.info
                 .publisher_token(entity, &fq, &ty, &rmw::qos_token(durability, depth));
-        let publisher = self
+        let builder = self
             .session
             .declare_publisher(key.clone())
             // rmw_zenoh: a keep-last publisher drops rather than blocks.
             .congestion_control(CongestionControl::Drop)
             // Zenoh queues each priority apart: poses are never dropped
             // behind a queue of images.
-            .priority(priority)
-            .wait()
-            .map_err(|e| anyhow!("cannot declare the publisher of {fq} ({key}): {e}"))?;
+            .priority(priority);
+        let publisher = match durability {
+            Durability::Volatile => builder.wait().map(Sender::Plain),
+            // rmw_zenoh's transient local: the last `depth` samples stay in
+            // a cache that a late subscriber queries (zenoh-ext's advanced
+            // publisher, as rmw_zenoh declares it).
+            Durability::TransientLocal => builder
+                .cache(CacheConfig::default().max_samples(depth as usize))
+                .publisher_detection()
+                .wait()
+                .map(Sender::Cached),
+        }
+        .map_err(|e| anyhow!("cannot declare the publisher of {fq} ({key}): {e}"))?;
         let token = self
             .session
             .liveliness()
@@ -254,8 +271,13 @@ pub struct RosPublisher {
     pub topic: String,
     gid: [u8; 16],
     pub sequence_number: i64,
-    publisher: Publisher<'static>,
+    publisher: Sender,
     _token: LivelinessToken,
+}
+
+enum Sender {
+    Plain(Publisher<'static>),
+    Cached(AdvancedPublisher<'static>),
 }
 
 impl RosPublisher {
@@ -266,11 +288,11 @@ impl RosPublisher {
             .map(|d| d.as_nanos() as i64)
             .unwrap_or(0);
         let attachment = rmw::attachment(self.sequence_number, now, &self.gid);
-        self.publisher
-            .put(cdr)
-            .attachment(attachment)
-            .wait()
-            .map_err(|e| anyhow!("cannot publish on {}: {e}", self.topic))
+        match &self.publisher {
+            Sender::Plain(p) => p.put(cdr).attachment(attachment).wait(),
+            Sender::Cached(p) => p.put(cdr).attachment(attachment).wait(),
+        }
+        .map_err(|e| anyhow!("cannot publish on {}: {e}", self.topic))
     }
 }
 

@@ -249,8 +249,10 @@ impl Outputs {
         }
     }
 
-    /// base -> camera (the mounting), on the transient-local topic; sent
-    /// again every diagnostics period for subscribers that come later.
+    /// base -> camera (the mounting), on the transient-local topic (a late
+    /// subscriber gets it from the publisher's cache); sent again every
+    /// diagnostics period too, for subscribers that do not ask the cache
+    /// (a volatile subscription, a bridge to DDS).
     fn publish_static(&mut self) -> Result<()> {
         let stamp = self.path_poses.first().map(|(t, _)| *t).unwrap_or_default();
         let t = TransformStamped {

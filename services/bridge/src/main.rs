@@ -162,7 +162,7 @@ fn serve(ctx: ServiceContext, run_dir: &std::path::Path) -> Result<()> {
             outputs.on_map(sample.user_header(), sample.payload())?;
         }
         if let (Some(s), Some(replies)) = (&mut services, &replies) {
-            s.poll(replies, Instant::now())?;
+            outputs.refused += s.poll(replies, Instant::now())?;
         }
         if stopping {
             // The supervisor stops the bridge after the SLAM: what the SLAM

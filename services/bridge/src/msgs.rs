@@ -599,4 +599,25 @@ mod tests {
             assert!(read_tf_message(&b[..cut]).is_err(), "cut at {cut}");
         }
     }
+
+    #[test]
+    fn service_requests_read_back_and_hostile_ones_are_errors() {
+        let mut w = Writer::new();
+        w.string("office");
+        let good = w.finish();
+        assert_eq!(read_save_map_request(&good).unwrap(), "office");
+        let mut huge = good.clone();
+        huge[4..8].copy_from_slice(&u32::MAX.to_le_bytes());
+        for bad in [&good[..6], &huge[..], &[0u8, 1][..], &[][..]] {
+            assert!(read_save_map_request(bad).is_err(), "{bad:?}");
+        }
+        let mut w = Writer::new();
+        w.u8(1);
+        assert!(read_set_bool_request(&w.finish()).unwrap());
+        assert!(read_set_bool_request(&crate::cdr::CDR_LE).is_err());
+        let r = success_message_response(false, "no");
+        let mut rd = Reader::new(&r).unwrap();
+        assert_eq!(rd.u8("success").unwrap(), 0);
+        assert_eq!(rd.string("message").unwrap(), "no");
+    }
 }

@@ -44,8 +44,8 @@ pub struct MapServices {
     commands: Sender<SlamCommand, ()>,
     pending: Vec<Pending>,
     next_id: u64,
-    /// Requests that made no sense (counted for the diagnostics).
-    pub refused: u64,
+    /// Requests that made no sense, not yet handed to the diagnostics.
+    refused: u64,
 }
 
 /// The services' names (relative: under the node's namespace) and types.
@@ -90,8 +90,9 @@ impl MapServices {
     }
 
     /// Passes new requests on, answers those the SLAM answered or that
-    /// waited too long.
-    pub fn poll(&mut self, replies: &Receiver<SlamReply, ()>, now: Instant) -> Result<()> {
+    /// waited too long. Returns how many requests made no sense (for the
+    /// diagnostics' count of refused messages).
+    pub fn poll(&mut self, replies: &Receiver<SlamReply, ()>, now: Instant) -> Result<u64> {
         for i in 0..self.endpoints.len() {
             while let Some(request) = self.endpoints[i].service.next() {
                 self.on_request(i, request, now)?;
@@ -113,7 +114,7 @@ impl MapServices {
             let message = "the SLAM did not answer in time (stopped or restarting?); try again";
             self.respond(p.endpoint, p.request, false, message)?;
         }
-        Ok(())
+        Ok(std::mem::take(&mut self.refused))
     }
 
     fn on_request(&mut self, endpoint: usize, request: ServiceRequest, now: Instant) -> Result<()> {

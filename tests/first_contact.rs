@@ -180,13 +180,26 @@ fn the_camera_follows_the_folder_name_and_camera_overrides_it() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
-/// The `dynslam ...` and `just ...` commands in the README's code blocks.
+/// The user's guide: the README and the reference pages it sends readers to.
+const GUIDE: [&str; 5] = [
+    "README.md",
+    "docs/interfaces.md",
+    "docs/models.md",
+    "docs/operations.md",
+    "docs/library.md",
+];
+
+/// The `dynslam ...` and `just ...` commands in the guide's code blocks.
 fn readme_commands() -> Vec<Vec<String>> {
-    let readme =
-        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("README.md")).unwrap();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let guide: String = GUIDE
+        .iter()
+        .map(|f| std::fs::read_to_string(root.join(f)).unwrap())
+        .collect::<Vec<_>>()
+        .join("\n");
     let mut in_code = false;
     let mut out = Vec::new();
-    for line in readme.lines() {
+    for line in guide.lines() {
         if line.trim_start().starts_with("```") {
             in_code = !in_code;
             continue;
@@ -377,4 +390,44 @@ fn run_folders_and_files_are_private_by_default() {
         "private = false keeps the user's umask"
     );
     std::fs::remove_dir_all(&dir).ok();
+}
+
+/// The README stays a user's guide: short, no development history, and
+/// every page it links to exists.
+#[test]
+fn the_readme_is_a_short_guide_whose_links_resolve() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let readme = std::fs::read_to_string(root.join("README.md")).unwrap();
+    let lines = readme.lines().count();
+    assert!(
+        lines <= 300,
+        "README.md has {lines} lines (at most 300: details go to docs/)"
+    );
+    let words: Vec<&str> = readme.split_whitespace().collect();
+    for w in words.windows(2) {
+        let history = matches!(w[0].to_lowercase().as_str(), "stop" | "stops" | "issue")
+            && w[1]
+                .trim_matches(|c: char| !c.is_ascii_alphanumeric())
+                .parse::<u32>()
+                .is_ok();
+        assert!(
+            !history,
+            "README.md names development history: \"{} {}\"",
+            w[0], w[1]
+        );
+    }
+    for file in GUIDE {
+        let text = std::fs::read_to_string(root.join(file)).unwrap();
+        for link in text.split("](").skip(1) {
+            let target = link.split(')').next().unwrap_or("");
+            if target.starts_with("http") || target.starts_with('#') {
+                continue;
+            }
+            let base = Path::new(file).parent().unwrap_or(Path::new(""));
+            assert!(
+                root.join(base).join(target).exists(),
+                "{file} links to {target}, which does not exist"
+            );
+        }
+    }
 }

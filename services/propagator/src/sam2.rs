@@ -82,7 +82,7 @@ impl Sam2Settings {
         let required = |name: &str, value: &str| -> Result<()> {
             if value.is_empty() {
                 return Err(InputError(format!(
-                    "{}: required by backend \"sam2\" (no SAM 2 weights ship with dynslam; see the README)",
+                    "{}: required by backend \"sam2\" (no SAM 2 weights ship with dynslam; docs/models.md says how to export them)",
                     key(name)
                 ))
                 .into());

@@ -18,7 +18,7 @@
 use pipeline::views::DepthImage;
 
 /// Thresholds of the test (defaults chosen on the synth sequences and the
-/// static shared sequence; README "Weak detections").
+/// static shared sequence; docs/models.md "Weak detections").
 #[derive(Debug, Clone, Copy)]
 pub struct ForegroundParams {
     /// Share of the mask's pixels that must have a depth measurement.

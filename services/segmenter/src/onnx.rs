@@ -63,7 +63,7 @@ pub const SHARED_INPUT_SIZE: usize = 320;
 
 /// The input size used in lockstep when `input_size` is not set (as in the
 /// shipped configuration): on synthesised people 480 has 60-75 % of 640's
-/// IoU gain over 320 at 0.58x 640's time (README "Segmenter input size").
+/// IoU gain over 320 at 0.58x 640's time (docs/models.md "Segmenter input size").
 pub const DEFAULT_INPUT_SIZE: usize = 480;
 
 /// The input size used in real time when `input_size` is not set. There

@@ -97,7 +97,7 @@ pub struct SlamParams {
     pub global_bundle_adjustment: bool,
     /// RGB-D: drop features in regions that move unlike the camera
     /// ([`crate::tracking::motion_check`]), movers no mask names. Off by
-    /// default until it finds movers reliably (README "Motion check").
+    /// default until it finds movers reliably (docs/models.md "Motion check").
     pub motion_check: bool,
     /// After frames were left out (real time on a busy machine), tracking
     /// starts from the turn found by aligning the frame's small image with

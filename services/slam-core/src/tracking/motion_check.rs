@@ -33,7 +33,7 @@ use crate::camera::Camera;
 use crate::features::orb::hamming;
 use crate::frame::Frame;
 
-/// What the check looks for (README "Motion check" has the figures: the
+/// What the check looks for (docs/models.md "Motion check" has the figures: the
 /// static shared sequence keeps 99.76 % of its features and its ATE; a box
 /// carried through it is found in 84.1 % of the frames, the bar
 /// is 80 %).

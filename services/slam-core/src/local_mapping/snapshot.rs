@@ -162,5 +162,27 @@ mod tests {
         assert!(s.points.iter().all(|p| p.keyframe == 0));
         assert_eq!(s.points[1].colour, [1; 3]);
         assert!(slot.take().is_none(), "taken once");
+        // A closed loop moved the map: a snapshot though the period is not
+        // over (whoever shows the keyframes must redraw them).
+        let looped = MappingReport {
+            loops: vec![crate::loop_closing::LoopReport {
+                keyframe: 1,
+                closed: Some(crate::loop_closing::LoopClosure {
+                    keyframe: 1,
+                    matched: 0,
+                    inliers: 50,
+                    confirmed: 3,
+                    correction_m: 0.1,
+                    correction_deg: 1.0,
+                    fused: 10,
+                    keyframes_moved: 1,
+                    scale: 1.0,
+                }),
+                ..Default::default()
+            }],
+            ..MappingReport::default()
+        };
+        SnapshotRequest { due: false, ..due }.fulfil(&map, 1, &looped);
+        assert_eq!(slot.take().map(|s| s.keyframes.len()), Some(1));
     }
 }

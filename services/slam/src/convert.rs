@@ -31,6 +31,15 @@ pub fn params(config: &PipelineConfig) -> SlamParams {
     params
 }
 
+/// The scheduling crate's keyframe decision as the SLAM core takes it.
+pub fn keyframe_timing(when: scheduling::KeyframeWhen) -> slam_core::KeyframeTiming {
+    match when {
+        scheduling::KeyframeWhen::Now => slam_core::KeyframeTiming::Now,
+        scheduling::KeyframeWhen::AfterBetterMasks => slam_core::KeyframeTiming::AfterBetterMasks,
+        scheduling::KeyframeWhen::NotThisFrame => slam_core::KeyframeTiming::NotThisFrame,
+    }
+}
+
 pub fn track_state(s: TrackingState) -> TrackState {
     match s {
         TrackingState::NotInitialised => TrackState::NotInitialised,

@@ -1,6 +1,5 @@
 //! The SLAM service's library: the seam between the service and a SLAM
-//! implementation ([`tracker::Tracker`]), when a frame may become a keyframe
-//! ([`keyframe_timing`]), the `orb-rgbd` backend over the
+//! implementation ([`tracker::Tracker`]), the `orb-rgbd` backend over the
 //! SLAM core (the `slam-core` crate, which has no IPC in it), the
 //! `scripted` test double, `loops.csv`, what it shares with the ROS 2
 //! bridge ([`bridge_link`]), and the conversions between the pipeline's
@@ -8,7 +7,6 @@
 
 pub mod bridge_link;
 pub mod convert;
-pub mod keyframe_timing;
 pub mod loops_csv;
 pub mod rgbd_tracker;
 pub mod scripted;

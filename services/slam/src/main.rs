@@ -18,13 +18,13 @@ use pipeline::config::ClockMode;
 use pipeline::runtime::{run_service, InputError, ServiceArgs, ServiceContext};
 use pipeline::transport::{attach, qos, wait, waitset, Svc, Wake};
 use pipeline::views::{FrameView, MasksView};
+use scheduling::KeyframeFacts;
 use shared_types::names::Topic;
 use shared_types::{
     frame_flags, mask_flags, FrameHeader, MaskSource, MasksHeader, Pose, Route, RouteKind,
     ServiceKind, StageStamps, Track, TrackState,
 };
 use slam::bridge_link::BridgeLink;
-use slam::keyframe_timing::KeyframeFacts;
 use slam::rgbd_tracker::{MapFiles, RgbdTracker};
 use slam::scripted::ScriptedTracker;
 use slam::tracker::{TrackInput, Tracker};
@@ -379,13 +379,13 @@ fn from_segmenter(m: &MasksSample) -> bool {
 }
 
 /// When the frame at `index` may become a keyframe
-/// ([`slam::keyframe_timing`]), from what this service knows of its masks.
+/// ([`scheduling::keyframe_timing`]), from what this service knows of its masks.
 fn keyframe_timing(st: &State, index: usize, realtime: bool) -> KeyframeTiming {
     let seq = st.frames[index].sample.user_header().seq;
     // At most one masks sample per frame is held (a frame's segmenter
     // masks replace its propagated ones).
     let own_masks = st.masks.iter().find(|m| m.user_header().seq == seq);
-    slam::keyframe_timing::keyframe_timing(KeyframeFacts {
+    slam::convert::keyframe_timing(scheduling::keyframe_timing(KeyframeFacts {
         realtime,
         route: st
             .routes
@@ -401,7 +401,7 @@ fn keyframe_timing(st: &State, index: usize, realtime: bool) -> KeyframeTiming {
         scene_empty: st.scene_empty()
             && own_masks.is_some_and(|m| m.user_header().num_instances == 0),
         asked_before: st.last.is_some_and(|t| t.next_needs_keyframe != 0),
-    })
+    }))
 }
 
 /// The Track of the ready frame at `index`: tracked with its masks, or

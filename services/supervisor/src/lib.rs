@@ -15,7 +15,6 @@ pub mod outputs;
 pub mod plots;
 pub mod report;
 pub mod ros2_camera;
-pub mod routing;
 pub mod run;
 pub mod run_dir;
 pub mod vocab;

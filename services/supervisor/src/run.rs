@@ -30,8 +30,8 @@ use crate::external::ExternalStream;
 use crate::latency;
 use crate::mask_record::MaskRecorder;
 use crate::outputs::{write_tum, FrameLog, FrameRow, RecordedFrames};
-use crate::routing::{Availability, Router};
 use crate::run_dir::{self, ChildStatus, Status};
+use scheduling::routing::{Availability, Router};
 
 /// The SLAM service writes its map here (in the run folder) when stopped.
 pub const MAP_FILE: &str = "map.ply";

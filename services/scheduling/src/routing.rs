@@ -19,8 +19,42 @@
 //! Workers that were given up on are routed around; with none left the frame
 //! goes on unmasked (Skip).
 
-use pipeline::config::RoutingConfig;
+use serde::{Deserialize, Serialize};
 use shared_types::RouteKind;
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct RoutingConfig {
+    /// Send a frame to the segmenter when the newest segmenter masks are more
+    /// than this many frames old, whatever SLAM's keyframe flag says.
+    pub max_segment_age: u64,
+    /// Segment every frame (ablation: no propagation).
+    pub segment_every_frame: bool,
+    /// Run without any masks: every frame is routed Skip (ablation).
+    pub no_masks: bool,
+    /// The propagator asks for a segmenter run when something moves outside
+    /// the objects it follows (a person walking in after the keyframe); the
+    /// next frame is then routed to the segmenter (at most one request per
+    /// 5 frames). Off: newcomers wait for `max_segment_age`.
+    pub early_segment_requests: bool,
+    /// With `early_segment_requests`: the propagator also asks once the
+    /// camera has turned by this share of the image width (or height) since
+    /// the segmenter last saw the view, for whoever the turn brought into
+    /// view (they show no motion of their own to ask with). 0: never.
+    pub unseen_view_share: f32,
+}
+
+impl Default for RoutingConfig {
+    fn default() -> Self {
+        Self {
+            max_segment_age: 10,
+            segment_every_frame: false,
+            no_masks: false,
+            early_segment_requests: true,
+            unseen_view_share: 0.2,
+        }
+    }
+}
 
 #[derive(Debug, Clone)]
 pub struct Router {

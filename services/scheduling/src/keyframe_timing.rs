@@ -10,7 +10,21 @@
 //! an empty scene, a young map, a segmenter that stopped answering).
 
 use shared_types::RouteKind;
-use slam_core::KeyframeTiming;
+
+/// When a frame that the keyframe rule picks becomes a keyframe (the SLAM
+/// core's `KeyframeTiming`, which the SLAM service converts it to).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum KeyframeWhen {
+    /// Now, with the masks it was tracked with.
+    #[default]
+    Now,
+    /// When its better (segmenter) masks come; later frames are tracked
+    /// meanwhile.
+    AfterBetterMasks,
+    /// Not this frame: the keyframe waits for a frame that gets segmenter
+    /// masks.
+    NotThisFrame,
+}
 
 /// What the service knows about a frame when it tracks it.
 #[derive(Debug, Clone, Copy, Default)]
@@ -47,16 +61,16 @@ pub struct KeyframeFacts {
 /// view, or anything the propagator saw move since, keeps the wait: a
 /// keyframe from propagated masks puts the people they missed into the
 /// map (docs/measurements.md "Real-time masks on people").
-pub fn keyframe_timing(f: KeyframeFacts) -> KeyframeTiming {
+pub fn keyframe_timing(f: KeyframeFacts) -> KeyframeWhen {
     if !f.realtime || f.segmented || f.young_map {
-        return KeyframeTiming::Now;
+        return KeyframeWhen::Now;
     }
     match f.route {
-        Some(RouteKind::SegmentBehind) if f.scene_empty => KeyframeTiming::Now,
-        Some(RouteKind::SegmentBehind) => KeyframeTiming::AfterBetterMasks,
-        Some(RouteKind::Propagate) if f.scene_empty && f.asked_before => KeyframeTiming::Now,
-        Some(RouteKind::Propagate) if f.segmenter_alive => KeyframeTiming::NotThisFrame,
-        _ => KeyframeTiming::Now,
+        Some(RouteKind::SegmentBehind) if f.scene_empty => KeyframeWhen::Now,
+        Some(RouteKind::SegmentBehind) => KeyframeWhen::AfterBetterMasks,
+        Some(RouteKind::Propagate) if f.scene_empty && f.asked_before => KeyframeWhen::Now,
+        Some(RouteKind::Propagate) if f.segmenter_alive => KeyframeWhen::NotThisFrame,
+        _ => KeyframeWhen::Now,
     }
 }
 
@@ -80,23 +94,23 @@ mod tests {
             segmenter_alive: true,
             ..Default::default()
         };
-        assert_eq!(keyframe_timing(lockstep), KeyframeTiming::Now);
+        assert_eq!(keyframe_timing(lockstep), KeyframeWhen::Now);
         let segmented = KeyframeFacts {
             segmented: true,
             ..realtime(RouteKind::SegmentBehind)
         };
-        assert_eq!(keyframe_timing(segmented), KeyframeTiming::Now);
+        assert_eq!(keyframe_timing(segmented), KeyframeWhen::Now);
     }
 
     #[test]
     fn with_something_in_view_a_keyframe_waits_for_segmenter_masks() {
         assert_eq!(
             keyframe_timing(realtime(RouteKind::SegmentBehind)),
-            KeyframeTiming::AfterBetterMasks
+            KeyframeWhen::AfterBetterMasks
         );
         assert_eq!(
             keyframe_timing(realtime(RouteKind::Propagate)),
-            KeyframeTiming::NotThisFrame
+            KeyframeWhen::NotThisFrame
         );
     }
 
@@ -108,24 +122,24 @@ mod tests {
         };
         assert_eq!(
             keyframe_timing(empty(RouteKind::SegmentBehind)),
-            KeyframeTiming::Now
+            KeyframeWhen::Now
         );
         // The asking frame itself leaves it to the next, as in lockstep.
         assert_eq!(
             keyframe_timing(empty(RouteKind::Propagate)),
-            KeyframeTiming::NotThisFrame
+            KeyframeWhen::NotThisFrame
         );
         let after_asking = KeyframeFacts {
             asked_before: true,
             ..empty(RouteKind::Propagate)
         };
-        assert_eq!(keyframe_timing(after_asking), KeyframeTiming::Now);
+        assert_eq!(keyframe_timing(after_asking), KeyframeWhen::Now);
         // Not empty: the wait stays, asked or not.
         let in_view = KeyframeFacts {
             asked_before: true,
             ..realtime(RouteKind::Propagate)
         };
-        assert_eq!(keyframe_timing(in_view), KeyframeTiming::NotThisFrame);
+        assert_eq!(keyframe_timing(in_view), KeyframeWhen::NotThisFrame);
     }
 
     #[test]
@@ -135,12 +149,12 @@ mod tests {
                 young_map: true,
                 ..realtime(route)
             };
-            assert_eq!(keyframe_timing(young), KeyframeTiming::Now, "{route:?}");
+            assert_eq!(keyframe_timing(young), KeyframeWhen::Now, "{route:?}");
         }
         let silent = KeyframeFacts {
             segmenter_alive: false,
             ..realtime(RouteKind::Propagate)
         };
-        assert_eq!(keyframe_timing(silent), KeyframeTiming::Now);
+        assert_eq!(keyframe_timing(silent), KeyframeWhen::Now);
     }
 }

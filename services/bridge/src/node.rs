@@ -206,6 +206,14 @@ impl RosNode {
     }
 }
 
+/// The attachment's source timestamp: wall-clock ns, as rmw_zenoh writes it.
+fn wall_clock_ns() -> i64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos() as i64)
+        .unwrap_or(0)
+}
+
 /// Requests a service queues between two looks (more are dropped: the
 /// client times out).
 const SERVICE_QUEUE: usize = 16;
@@ -251,11 +259,11 @@ impl RosService {
     /// request's sequence number and the client's gid back (rmw_zenoh
     /// matches responses to requests by them).
     pub fn respond(&self, request: ServiceRequest, cdr: Vec<u8>) -> Result<()> {
-        let now = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_nanos() as i64)
-            .unwrap_or(0);
-        let attachment = rmw::attachment(request.sequence_number, now, &request.client_gid);
+        let attachment = rmw::attachment(
+            request.sequence_number,
+            wall_clock_ns(),
+            &request.client_gid,
+        );
         request
             .query
             .reply(self.key.clone(), cdr)
@@ -283,11 +291,7 @@ enum Sender {
 impl RosPublisher {
     pub fn publish(&mut self, cdr: Vec<u8>) -> Result<()> {
         self.sequence_number += 1;
-        let now = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_nanos() as i64)
-            .unwrap_or(0);
-        let attachment = rmw::attachment(self.sequence_number, now, &self.gid);
+        let attachment = rmw::attachment(self.sequence_number, wall_clock_ns(), &self.gid);
         match &self.publisher {
             Sender::Plain(p) => p.put(cdr).attachment(attachment).wait(),
             Sender::Cached(p) => p.put(cdr).attachment(attachment).wait(),

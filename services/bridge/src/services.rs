@@ -103,7 +103,7 @@ impl MapServices {
             if let Some(at) = self.pending.iter().position(|p| p.id == reply.id) {
                 let p = self.pending.swap_remove(at);
                 let message = read_error_text(&reply.message);
-                self.respond(p.endpoint, p.request, reply.ok != 0, &message)?;
+                self.respond(p.endpoint, p.request, reply.ok != 0, &message);
             }
         }
         let (late, waiting): (Vec<Pending>, Vec<Pending>) = std::mem::take(&mut self.pending)
@@ -112,7 +112,7 @@ impl MapServices {
         self.pending = waiting;
         for p in late {
             let message = "the SLAM did not answer in time (stopped or restarting?); try again";
-            self.respond(p.endpoint, p.request, false, message)?;
+            self.respond(p.endpoint, p.request, false, message);
         }
         Ok(std::mem::take(&mut self.refused))
     }
@@ -141,13 +141,15 @@ impl MapServices {
             Ok(true) => {}
             Ok(false) => {
                 self.refused += 1;
-                return self.respond(endpoint, request, false, "map name too long");
+                self.respond(endpoint, request, false, "map name too long");
+                return Ok(());
             }
             Err(e) => {
                 self.refused += 1;
                 let name = self.endpoints[endpoint].service.name.clone();
                 tracing::warn!("{name}: a malformed request: {e}");
-                return self.respond(endpoint, request, false, &format!("malformed request: {e}"));
+                self.respond(endpoint, request, false, &format!("malformed request: {e}"));
+                return Ok(());
             }
         }
         self.next_id += 1;
@@ -166,19 +168,12 @@ impl MapServices {
         Ok(())
     }
 
-    fn respond(
-        &self,
-        endpoint: usize,
-        request: ServiceRequest,
-        success: bool,
-        message: &str,
-    ) -> Result<()> {
+    fn respond(&self, endpoint: usize, request: ServiceRequest, success: bool, message: &str) {
         let service = &self.endpoints[endpoint].service;
         tracing::info!(success, "{}: {message}", service.name);
         // A client gone meanwhile is not the bridge's failure.
         if let Err(e) = service.respond(request, msgs::success_message_response(success, message)) {
             tracing::warn!("{e:#}");
         }
-        Ok(())
     }
 }

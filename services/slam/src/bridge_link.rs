@@ -115,7 +115,6 @@ impl BridgeLink {
                 [t.x, t.y, t.z, q.i, q.j, q.k, q.w]
             })
             .collect();
-        let mut left_out = 0u32;
         let points: Vec<MapPointEntry> = snapshot
             .points
             .iter()
@@ -131,7 +130,7 @@ impl BridgeLink {
                 keyframe: p.keyframe,
             })
             .collect();
-        left_out += (snapshot.points.len() - points.len()) as u32;
+        let left_out = (snapshot.points.len() - points.len()) as u32;
         if left_out > 0 && !self.left_out_warned {
             self.left_out_warned = true;
             tracing::warn!(
@@ -162,13 +161,7 @@ impl BridgeLink {
     ) -> Result<Served> {
         let mut served = Served::default();
         if self.saving.as_ref().is_some_and(|s| s.writer.is_finished()) {
-            if let Some(s) = self.saving.take() {
-                let result = s
-                    .writer
-                    .join()
-                    .unwrap_or_else(|_| Err("the map writer panicked".into()));
-                self.reply(s.id, result)?;
-            }
+            self.answer_save()?;
         }
         commands.clear_wakeups();
         while let Some(c) = commands.next()? {
@@ -236,16 +229,21 @@ impl BridgeLink {
         self.replies.send(SlamReply::new(id, result))
     }
 
+    /// Waits for the save in progress, if any, and answers its command.
+    fn answer_save(&mut self) -> Result<()> {
+        let Some(s) = self.saving.take() else {
+            return Ok(());
+        };
+        let result = s
+            .writer
+            .join()
+            .unwrap_or_else(|_| Err("the map writer panicked".into()));
+        self.reply(s.id, result)
+    }
+
     /// At stop: a save in progress is finished and answered.
     pub fn finish(&mut self) -> Result<()> {
-        if let Some(s) = self.saving.take() {
-            let result = s
-                .writer
-                .join()
-                .unwrap_or_else(|_| Err("the map writer panicked".into()));
-            self.reply(s.id, result)?;
-        }
-        Ok(())
+        self.answer_save()
     }
 }
 

@@ -39,6 +39,14 @@ pub struct RgbdTracker {
     localize_marker: Option<PathBuf>,
 }
 
+/// Removes `path`; a file that is not there is fine.
+fn remove_if_present(path: &std::path::Path) -> std::io::Result<()> {
+    match std::fs::remove_file(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(e),
+        _ => Ok(()),
+    }
+}
+
 /// The file that says "localization mode" beside the run's checkpoint.
 const LOCALIZE_MARKER: &str = "localization_mode";
 
@@ -248,11 +256,8 @@ impl Tracker for RgbdTracker {
         // new map, never the old one.
         self.system.set_checkpoint(None);
         if let Some(c) = &self.files.checkpoint {
-            if let Err(e) = std::fs::remove_file(c) {
-                if e.kind() != std::io::ErrorKind::NotFound {
-                    return Err(format!("cannot remove the checkpoint {}: {e}", c.display()));
-                }
-            }
+            remove_if_present(c)
+                .map_err(|e| format!("cannot remove the checkpoint {}: {e}", c.display()))?;
         }
         self.set_localize_only(false)?;
         let files = MapFiles {
@@ -276,13 +281,7 @@ impl Tracker for RgbdTracker {
             let written = if on {
                 std::fs::write(marker, b"on\n")
             } else {
-                std::fs::remove_file(marker).or_else(|e| {
-                    if e.kind() == std::io::ErrorKind::NotFound {
-                        Ok(())
-                    } else {
-                        Err(e)
-                    }
-                })
+                remove_if_present(marker)
             };
             written.map_err(|e| format!("cannot record the mode in {}: {e}", marker.display()))?;
         }

@@ -116,6 +116,8 @@ test: build setup evo fixtures pyiceoryx2 ros2py
     cargo test --release --workspace
     # The SLAM library's example, alone on 30 shared frames.
     cargo run --release --quiet -p slam-core --example track_tum -- "{{tum}}" --limit 30 > /dev/null
+    # A newcomer's path through the README: just run, their own TUM folder, real time, kills, the report.
+    bash tools/newcomer-path.sh "{{tum}}"
 
 # Accuracy of a trajectory against ground truth (ATE/RPE, as evo computes them).
 eval gt est *args="": build
@@ -154,6 +156,10 @@ bench-dropped dataset=tum *args="": build
 # The whole pipeline in real time on the shared sequence: 30 and 60 fps, each without and with 2 busy processes pinned to the cores; tracked fps, drops, end-to-end p50/p99, masked share, keyframes and ATE next to lockstep's (writes bench-results/realtime.json).
 bench-realtime *args="": build setup
     ./target/release/realtime-bench {{args}}
+
+# Real time, this build against an older checkout's target/release, alternated in one invocation: per condition the median and spread of each build and their ratio.
+bench-realtime-compare old *args="": build setup
+    python3 tools/compare-realtime.py '{{old}}' {{args}}
 
 # The same with people in front of the camera (synth-people: walking across, and in mixed behaviours), 3 runs a condition unless --runs says otherwise (writes bench-results/realtime_people_*.json).
 bench-realtime-people *args="": build setup synth-people

@@ -19,6 +19,7 @@ use pipeline::clock::now_ns;
 use pipeline::config::{ClockMode, SourceKind};
 use pipeline::runtime::{run_service, InputError, ServiceArgs, ServiceContext};
 use pipeline::transport::{attach, wait, waitset, Receiver, SampleMut, Sender, Svc, Waiter, Wake};
+use scheduling::source::{due_ns, LockstepCursor, Publish};
 use shared_types::names::Topic;
 use shared_types::{frame_flags, Control, FrameHeader, ServiceKind, Track};
 
@@ -264,64 +265,41 @@ fn lockstep(
     control: &Receiver<Control, ()>,
     start_seq: u64,
 ) -> Result<()> {
-    let total = player.frames.len() as u64;
-    let mut current = start_seq.min(total);
-    player.publish(current, false)?;
+    let mut cursor = LockstepCursor::new(start_seq, player.frames.len() as u64);
+    player.publish(cursor.current(), false)?;
     loop {
         if wait(ws, Duration::from_secs(1))? == Wake::Terminate {
             return Ok(());
         }
         for c in control.drain()? {
-            if c.replay_seq == current {
-                tracing::info!(seq = current, "replaying frame after a restart");
-                player.publish(current, true)?;
+            if let Some(Publish::Replay(seq)) = cursor.on_replay(c.replay_seq) {
+                tracing::info!(seq, "replaying frame after a restart");
+                player.publish(seq, true)?;
             }
         }
-        let done = tracks.drain()?.iter().any(|t| t.seq == current);
-        if done && current < total {
-            current += 1;
-            player.publish(current, false)?;
+        let tracked: Vec<u64> = tracks.drain()?.iter().map(|t| t.seq).collect();
+        if let Some(Publish::Next(seq)) = cursor.on_tracks(tracked) {
+            player.publish(seq, false)?;
         }
     }
 }
 
-/// Real time: decoded frames newer than SLAM's newest Track beyond which
-/// the next one is left out undecoded (decoding a frame nobody will track
-/// takes the cores the pipeline needs; a 60 fps PNG source costs most of one).
-const SOURCE_BACKLOG: u64 = 3;
-
-/// A decoded frame that no Track has passed for this long no longer counts
-/// towards the backlog: it was lost on the way (a worker restarted, a queue
-/// overflowed), and waiting for its Track would leave every later frame out.
-const BACKLOG_TIMEOUT_NS: u64 = 1_000_000_000;
-
-/// Real time: the frames decoded and published that SLAM has not passed.
+/// Real time: the frames decoded and published that SLAM has not passed
+/// (the rule is [`scheduling::source::Backlog`]'s).
 #[derive(Default)]
-struct Backlog {
-    newest_tracked: Option<u64>,
-    /// (seq, when published).
-    decoded: Vec<(u64, u64)>,
-}
+struct Backlog(scheduling::source::Backlog);
 
 impl Backlog {
     fn note_tracks(&mut self, tracks: &Receiver<Track, ()>) -> Result<()> {
-        if let Some(t) = tracks.drain()?.iter().map(|t| t.seq).max() {
-            self.newest_tracked = self.newest_tracked.max(Some(t));
+        for t in tracks.drain()? {
+            self.0.on_track(t.seq);
         }
         Ok(())
     }
 
-    /// Whether the next frame is to be left out: SOURCE_BACKLOG decoded
-    /// frames newer than the newest tracked one (and younger than
-    /// BACKLOG_TIMEOUT_NS) wait. Until SLAM answers at all (models still
-    /// warming up) nothing is left out.
+    /// Whether the next frame is to be left out now.
     fn full(&mut self) -> bool {
-        let now = now_ns();
-        let newest = self.newest_tracked;
-        self.decoded.retain(|&(d, at)| {
-            newest.is_none_or(|t| d > t) && now.saturating_sub(at) < BACKLOG_TIMEOUT_NS
-        });
-        newest.is_some() && self.decoded.len() as u64 >= SOURCE_BACKLOG
+        self.0.full(now_ns())
     }
 
     /// Frame `seq` decoded now, unless the pipeline is behind (a frame
@@ -341,7 +319,7 @@ impl Backlog {
     }
 
     fn published(&mut self, seq: u64) {
-        self.decoded.push((seq, now_ns()));
+        self.0.published(seq, now_ns());
     }
 }
 
@@ -364,7 +342,7 @@ fn realtime(
     for seq in start_seq..total {
         // Decoded ahead of its instant as soon as the pipeline has room for
         // it (a Track wakes the wait).
-        let due = t0 + ((player.frames[seq as usize].timestamp - first_ts) / speed * 1e9) as u64;
+        let due = due_ns(t0, first_ts, player.frames[seq as usize].timestamp, speed);
         let mut ahead = None;
         loop {
             let now = now_ns();

@@ -10,13 +10,14 @@ use std::time::Duration;
 
 use anyhow::Result;
 use iceoryx2::sample::Sample;
+use scheduling::worker::{Next, WorkQueue};
 use shared_types::names::Topic;
 use shared_types::{
-    mask_flags, FrameHeader, Instance, MaskSource, MasksHeader, Route, RouteKind, MAX_INSTANCES,
+    mask_flags, FrameHeader, Instance, MaskSource, MasksHeader, Route, RouteKind, ServiceKind,
+    MAX_INSTANCES,
 };
 
 use crate::clock::now_ns;
-use crate::config::ClockMode;
 use crate::runtime::ServiceContext;
 use crate::transport::{attach, wait, waitset, Svc, Wake};
 use crate::views::{FrameView, MasksView};
@@ -97,11 +98,10 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
     ctx.announce_ready()?;
     tracing::info!("{} ready with model '{}'", role.as_str(), model.name());
 
-    let realtime = ctx.config.run.mode == ClockMode::Realtime;
+    let mut queue: WorkQueue<Route> = WorkQueue::new(ctx.config.run.mode);
     let mut held: VecDeque<FrameSample> = VecDeque::new();
     // The segmenter's newest masks (held in place, not copied).
     let mut recent: VecDeque<MasksSample> = VecDeque::new();
-    let mut pending: VecDeque<Route> = VecDeque::new();
     // Propagator: frames the segmenter works on whose routes came before
     // them; kept when they arrive.
     let mut keep_on_arrival: VecDeque<u64> = VecDeque::new();
@@ -142,8 +142,7 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
                 }
             }
             if kind.is_some_and(mine) {
-                pending.retain(|p| p.seq != r.seq);
-                pending.push_back(r);
+                queue.on_route(r.seq, r);
             }
         }
         frames.clear_wakeups();
@@ -186,34 +185,31 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
                 }
             }
         }
-        if realtime && pending.len() > 1 {
-            // At camera rate only the newest routed frame is worth the work;
-            // the others are told gone (the supervisor records them dropped).
-            let newest = pending.pop_back();
-            for route in pending.drain(..) {
-                publish_gone(&masks_out, role, &route)?;
-            }
-            pending.extend(newest);
+        for route in queue.keep_newest() {
+            publish_gone(&masks_out, role, &route)?;
         }
-        while let Some(route) = pending.front().copied() {
-            let Some(sample) = held.iter().find(|s| s.user_header().seq == route.seq) else {
-                let oldest = held.front().map(|s| s.user_header().seq);
-                if oldest.is_some_and(|o| o > route.seq) {
-                    if realtime {
+        loop {
+            let oldest = held.front().map(|s| s.user_header().seq);
+            let is_held = |seq| held.iter().any(|s| s.user_header().seq == seq);
+            let route = match queue.next(is_held, oldest) {
+                Next::Work(route) => route,
+                Next::PassOver { route, tell_gone } => {
+                    not_held += 1;
+                    if tell_gone {
+                        // Real time: expected under load, counted at the end.
                         tracing::debug!(seq = route.seq, "routed frame no longer held; skipping");
+                        publish_gone(&masks_out, role, &route)?;
                     } else {
                         tracing::warn!(seq = route.seq, "routed frame no longer held; skipping");
                     }
-                    not_held += 1;
-                    pending.pop_front();
-                    if realtime {
-                        publish_gone(&masks_out, role, &route)?;
-                    }
                     continue;
                 }
-                break; // the frame has not arrived yet
+                Next::Wait => break,
             };
-            pending.pop_front();
+            let sample = held
+                .iter()
+                .find(|s| s.user_header().seq == route.seq)
+                .expect("the queue works only on held frames");
             tracing::debug!(seq = route.seq, "making masks");
             let previous = recent
                 .iter()
@@ -333,11 +329,20 @@ pub fn model_from_config(
     known: &[(&str, &ModelFactory)],
 ) -> Result<Box<dyn MaskModel>> {
     let section = ctx.kind.as_str();
-    let cfg = ctx.config.service(ctx.kind);
-    let wanted = cfg.backend.as_str();
+    let services = &ctx.config.services;
+    let (wanted, work_ms) = match ctx.kind {
+        ServiceKind::Segmenter => (
+            services.segmenter.backend.as_str(),
+            services.segmenter.work_ms,
+        ),
+        _ => (
+            services.propagator.backend.as_str(),
+            services.propagator.work_ms,
+        ),
+    };
     if wanted == "none" {
         return Ok(Box::new(NoObjects {
-            work: Duration::from_millis(cfg.work_ms),
+            work: Duration::from_millis(work_ms),
         }));
     }
     for (name, make) in known {

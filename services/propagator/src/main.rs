@@ -6,7 +6,6 @@
 use std::process::ExitCode;
 
 use clap::Parser;
-use pipeline::config::ClockMode;
 use pipeline::mask_worker::{self, model_from_config, ModelFactory};
 use pipeline::runtime::{run_service, ServiceArgs};
 use propagator::newcomers::NewcomerCheck;
@@ -28,8 +27,8 @@ fn main() -> ExitCode {
             let mut lk = LkPropagator::new(PropagatorParams::default());
             let routing = &ctx.config.routing;
             if routing.early_segment_requests {
-                let realtime = ctx.config.run.mode == ClockMode::Realtime;
-                if realtime && routing.unseen_view_share > 0.0 {
+                let mode = ctx.config.run.mode;
+                if mode.is_realtime() && routing.unseen_view_share > 0.0 {
                     tracing::debug!(
                         "routing.unseen_view_share applies to lockstep runs: in real time the segmenter would be busy on every frame it can take, at the tracking's expense"
                     );
@@ -37,7 +36,7 @@ fn main() -> ExitCode {
                 lk = lk.with_newcomer_check(NewcomerCheck::for_pipeline(
                     &ctx.config.camera,
                     routing,
-                    realtime,
+                    mode,
                 ));
             }
             Ok(Box::new(lk))

@@ -29,7 +29,7 @@
 //! 640x480 frame on one core of the 2-core machine (`propagator-bench`).
 
 use nalgebra::{SMatrix, SVector};
-use pipeline::config::{CameraConfig, RoutingConfig};
+use pipeline::config::{CameraConfig, ClockMode, RoutingConfig};
 use slam_core::geometry::ransac::Ransac;
 use slam_core::Camera;
 
@@ -248,19 +248,13 @@ impl NewcomerCheck {
 
     /// The check with the default parameters for the configured camera
     /// (depth units come with each frame; only the intrinsics and the
-    /// distortion are used) and routing. In `realtime` the unseen view asks
-    /// nothing: there a request keeps the segmenter busy on every frame it
-    /// can take, and on the 2-core machine it then takes the CPU the
-    /// propagator and the SLAM need (30 fps unloaded, static shared
-    /// sequence: end-to-end p99 48-64 ms without, 70-98 ms with it, 0.2).
-    pub fn for_pipeline(c: &CameraConfig, routing: &RoutingConfig, realtime: bool) -> Self {
+    /// distortion are used) and routing, in a run of `mode` (the unseen
+    /// view's share is a per-mode default:
+    /// [`scheduling::mode::unseen_view_share`]).
+    pub fn for_pipeline(c: &CameraConfig, routing: &RoutingConfig, mode: ClockMode) -> Self {
         let camera = Camera::new([c.fx, c.fy, c.cx, c.cy], c.distortion, 1.0, 0.0);
         let params = NewcomerParams {
-            unseen_view_share: if realtime {
-                0.0
-            } else {
-                routing.unseen_view_share
-            },
+            unseen_view_share: scheduling::mode::unseen_view_share(mode, routing.unseen_view_share),
             ..NewcomerParams::default()
         };
         Self::new(camera, params)

@@ -29,7 +29,7 @@ use anyhow::{bail, Context, Result};
 use onnx_runtime::{check_input_size, check_signature, open_session, verified_model};
 use ort::session::Session;
 use ort::value::TensorRef;
-use pipeline::config::ServiceConfig;
+use pipeline::config::PropagatorConfig;
 use pipeline::mask_worker::MaskModel;
 use pipeline::runtime::InputError;
 use pipeline::views::{FrameView, MasksView};
@@ -77,7 +77,7 @@ pub struct Sam2Settings {
 impl Sam2Settings {
     /// Every problem is an input error naming its key: there are no shipped
     /// SAM 2 weights, so the files and their sha256 must be configured.
-    pub fn from_config(cfg: &ServiceConfig) -> Result<Self> {
+    pub fn from_config(cfg: &PropagatorConfig) -> Result<Self> {
         let key = |k: &str| format!("key `services.propagator.{k}`");
         let required = |name: &str, value: &str| -> Result<()> {
             if value.is_empty() {

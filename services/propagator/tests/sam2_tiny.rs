@@ -8,7 +8,7 @@
 
 use std::path::{Path, PathBuf};
 
-use pipeline::config::{OnnxRuntimeConfig, ServiceConfig};
+use pipeline::config::{OnnxRuntimeConfig, PropagatorConfig};
 use pipeline::provision::{sha256_of, ORT_CACHE};
 use propagator::sam2::{Sam2Propagator, Sam2Settings};
 use shared_types::Instance;
@@ -21,8 +21,8 @@ fn fixture(name: &str) -> PathBuf {
     repo().join("tests/fixtures").join(name)
 }
 
-fn config(encoder: &str, decoder: &str) -> ServiceConfig {
-    ServiceConfig {
+fn config(encoder: &str, decoder: &str) -> PropagatorConfig {
+    PropagatorConfig {
         backend: "sam2".into(),
         model: encoder.into(),
         model_path: Some(fixture(encoder)),

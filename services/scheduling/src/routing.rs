@@ -22,6 +22,7 @@
 use serde::{Deserialize, Serialize};
 use shared_types::RouteKind;
 
+/// `[routing]` of the pipeline configuration.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct RoutingConfig {
@@ -56,6 +57,7 @@ impl Default for RoutingConfig {
     }
 }
 
+/// The routing rule's state (see the module docs).
 #[derive(Debug, Clone)]
 pub struct Router {
     policy: RoutingConfig,
@@ -82,7 +84,9 @@ pub struct Router {
 /// as available: lockstep waits for it).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Availability {
+    /// The segmenter is not given up on.
     pub segmenter: bool,
+    /// The propagator is not given up on.
     pub propagator: bool,
 }
 

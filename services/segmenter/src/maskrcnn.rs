@@ -15,7 +15,7 @@
 use anyhow::{bail, Context, Result};
 use ort::session::Session;
 use ort::value::TensorRef;
-use pipeline::config::ServiceConfig;
+use pipeline::config::SegmenterConfig;
 use pipeline::mask_worker::MaskModel;
 use pipeline::runtime::InputError;
 use pipeline::views::FrameView;
@@ -187,7 +187,7 @@ pub struct MaskRcnn {
 impl MaskRcnn {
     /// Loads the model named by `[services.segmenter]` (`model`/`model_path`
     /// and `model_sha256` are required: no Mask R-CNN weights ship here).
-    pub fn from_config(env: ort::environment::Environment, cfg: &ServiceConfig) -> Result<Self> {
+    pub fn from_config(env: ort::environment::Environment, cfg: &SegmenterConfig) -> Result<Self> {
         if cfg.model.is_empty() || cfg.model_sha256.is_empty() {
             return Err(InputError(
                 "keys `services.segmenter.model` and `model_sha256`: the maskrcnn backend needs your torchvision Mask R-CNN ONNX export and its sha256".into(),

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context, Result};
 use ort::session::Session;
 use ort::value::TensorRef;
-use pipeline::config::{ClockMode, ServiceConfig};
+use pipeline::config::{ClockMode, SegmenterConfig};
 use pipeline::mask_worker::MaskModel;
 use pipeline::runtime::InputError;
 use pipeline::views::{DepthImage, FrameView, MasksView};
@@ -61,25 +61,11 @@ pub const MODELS: [(usize, &str, &str); 3] = [
 /// The input size of the shared export (the others are derived from it).
 pub const SHARED_INPUT_SIZE: usize = 320;
 
-/// The input size used in lockstep when `input_size` is not set (as in the
-/// shipped configuration): on synthesised people 480 has 60-75 % of 640's
-/// IoU gain over 320 at 0.58x 640's time (docs/models.md "Segmenter input size").
-pub const DEFAULT_INPUT_SIZE: usize = 480;
-
-/// The input size used in real time when `input_size` is not set. There
-/// the segmenter's pace bounds the keyframes (a keyframe waits for its own
-/// masks), and at 480 a loaded 2-core machine got too few of them: static
-/// sequence, 60 fps with 2 busy processes, ATE 1.30x lockstep at 480 and
-/// 1.20x at 320 over 16 runs each (docs/measurements.md, stop 47/48).
-pub const REALTIME_DEFAULT_INPUT_SIZE: usize = 320;
-
 /// The input size that an unset `input_size` (and no model naming an
-/// export) means in a run of this clock mode.
+/// export) means in a run of this clock mode: a per-mode default, so it is
+/// the scheduling crate's ([`scheduling::mode::segmenter_input_size`]).
 pub fn default_input_size(mode: ClockMode) -> usize {
-    match mode {
-        ClockMode::Lockstep => DEFAULT_INPUT_SIZE,
-        ClockMode::Realtime => REALTIME_DEFAULT_INPUT_SIZE,
-    }
+    scheduling::mode::segmenter_input_size(mode)
 }
 
 /// The entry of [`MODELS`] for an input size; another size is an error
@@ -100,14 +86,14 @@ impl YoloSettings {
     /// Resolves and verifies the settings of `[services.segmenter]`: every
     /// problem is an [`InputError`] that names the key or file. Without
     /// `model`, the export of [`MODELS`] for `input_size` is used; without
-    /// either, the lockstep default ([`DEFAULT_INPUT_SIZE`]).
-    pub fn from_config(cfg: &ServiceConfig) -> Result<Self> {
+    /// either, the lockstep default ([`default_input_size`]).
+    pub fn from_config(cfg: &SegmenterConfig) -> Result<Self> {
         Self::for_mode(cfg, ClockMode::Lockstep)
     }
 
     /// [`Self::from_config`] for a run in `mode`: an unset `input_size`
     /// with no model naming an export means [`default_input_size`].
-    pub fn for_mode(cfg: &ServiceConfig, mode: ClockMode) -> Result<Self> {
+    pub fn for_mode(cfg: &SegmenterConfig, mode: ClockMode) -> Result<Self> {
         // A known export named by `model` or by the file name of
         // `model_path` brings its own input size, so pointing `model_path`
         // at the shared 320 file works without also setting `input_size`.
@@ -423,7 +409,7 @@ mod tests {
         // (The run with the model found beside the repo:
         // tests/models_pipeline.rs.) A set size wins over the mode.
         let err = YoloSettings::for_mode(
-            &ServiceConfig {
+            &SegmenterConfig {
                 input_size: Some(416),
                 ..Default::default()
             },
@@ -435,7 +421,7 @@ mod tests {
         // A model naming an export wins too.
         let shared = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("../../../shared/models/yolov8n-seg_f32.onnx");
-        let named = ServiceConfig {
+        let named = SegmenterConfig {
             model_path: Some(shared),
             ..Default::default()
         };
@@ -447,12 +433,12 @@ mod tests {
     fn a_model_path_to_a_known_export_brings_its_input_size() {
         let shared = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("../../../shared/models/yolov8n-seg_f32.onnx");
-        let cfg = ServiceConfig {
+        let cfg = SegmenterConfig {
             model_path: Some(shared),
             ..Default::default()
         };
         assert_eq!(YoloSettings::from_config(&cfg).unwrap().input_size, 320);
-        let mismatched = ServiceConfig {
+        let mismatched = SegmenterConfig {
             input_size: Some(640),
             ..cfg
         };

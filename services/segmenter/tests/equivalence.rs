@@ -8,7 +8,7 @@
 use std::path::{Path, PathBuf};
 
 use onnx_runtime::init_runtime;
-use pipeline::config::{OnnxRuntimeConfig, ServiceConfig};
+use pipeline::config::{OnnxRuntimeConfig, SegmenterConfig};
 use pipeline::provision::ORT_CACHE;
 use segmenter::onnx::{YoloSeg, YoloSettings};
 
@@ -29,7 +29,7 @@ fn rust_decoder_matches_the_python_numpy_reference_on_a_street_photo() {
     )
     .unwrap();
 
-    let cfg = ServiceConfig {
+    let cfg = SegmenterConfig {
         model_path: Some(repo().join("../shared/models/yolov8n-seg_f32.onnx")),
         score_threshold: Some(reference["score_threshold"].as_f64().unwrap() as f32),
         iou_threshold: Some(reference["iou_threshold"].as_f64().unwrap() as f32),

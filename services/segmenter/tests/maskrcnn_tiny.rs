@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use onnx_runtime::init_runtime;
-use pipeline::config::{OnnxRuntimeConfig, ServiceConfig};
+use pipeline::config::{OnnxRuntimeConfig, SegmenterConfig};
 use pipeline::provision::{sha256_of, ORT_CACHE};
 use segmenter::coco::CLASSES;
 use segmenter::maskrcnn::MaskRcnn;
@@ -17,7 +17,7 @@ fn repo() -> PathBuf {
 
 fn load(file: &str) -> MaskRcnn {
     let path = repo().join("tests/fixtures").join(file);
-    let cfg = ServiceConfig {
+    let cfg = SegmenterConfig {
         model: file.into(),
         model_sha256: sha256_of(&path).unwrap(),
         model_path: Some(path),
@@ -89,7 +89,7 @@ fn missing_hash_is_a_configuration_error() {
         ..Default::default()
     })
     .unwrap();
-    let err = MaskRcnn::from_config(env, &ServiceConfig::default())
+    let err = MaskRcnn::from_config(env, &SegmenterConfig::default())
         .err()
         .unwrap()
         .to_string();

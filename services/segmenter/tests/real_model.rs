@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use onnx_runtime::init_runtime;
-use pipeline::config::{OnnxRuntimeConfig, ServiceConfig};
+use pipeline::config::{OnnxRuntimeConfig, SegmenterConfig};
 use pipeline::provision::ORT_CACHE;
 use segmenter::coco::CLASSES;
 use segmenter::onnx::{YoloSeg, YoloSettings};
@@ -21,7 +21,7 @@ fn runtime() -> OnnxRuntimeConfig {
 }
 
 fn model(classes: &[&str], score: f32) -> YoloSeg {
-    let cfg = ServiceConfig {
+    let cfg = SegmenterConfig {
         model_path: Some(repo().join("../shared/models/yolov8n-seg_f32.onnx")),
         classes: classes.iter().map(|s| s.to_string()).collect(),
         score_threshold: Some(score),
@@ -102,7 +102,7 @@ fn bad_model_files_and_runtime_give_named_errors() {
     let dir = std::env::temp_dir().join(format!("dynslam-badmodel-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     // Wrong hash.
-    let cfg = ServiceConfig {
+    let cfg = SegmenterConfig {
         model_path: Some(repo().join("../shared/models/yolov8n-seg_int8.onnx")),
         model: "yolov8n-seg_int8.onnx".into(),
         model_sha256: "00".repeat(32),
@@ -114,7 +114,7 @@ fn bad_model_files_and_runtime_give_named_errors() {
         "{err}"
     );
     // Missing model.
-    let cfg = ServiceConfig {
+    let cfg = SegmenterConfig {
         model_path: Some(dir.join("nothing.onnx")),
         model: "nothing.onnx".into(),
         model_sha256: "00".repeat(32),
@@ -129,7 +129,7 @@ fn bad_model_files_and_runtime_give_named_errors() {
     let corrupt = dir.join("corrupt.onnx");
     std::fs::write(&corrupt, b"not a protobuf at all").unwrap();
     let sha = pipeline::provision::sha256_of(&corrupt).unwrap();
-    let cfg = ServiceConfig {
+    let cfg = SegmenterConfig {
         model_path: Some(corrupt.clone()),
         model: "corrupt.onnx".into(),
         model_sha256: sha,
@@ -145,7 +145,7 @@ fn bad_model_files_and_runtime_give_named_errors() {
         "{err}"
     );
     // Unknown class name.
-    let cfg = ServiceConfig {
+    let cfg = SegmenterConfig {
         model_path: Some(repo().join("../shared/models/yolov8n-seg_f32.onnx")),
         classes: vec!["pedestrian".into()],
         ..Default::default()
@@ -184,7 +184,7 @@ fn an_input_size_the_model_does_not_take_is_a_configuration_error() {
         &own,
     )
     .unwrap();
-    let cfg = ServiceConfig {
+    let cfg = SegmenterConfig {
         model: "my-yolo.onnx".into(),
         model_sha256: segmenter::onnx::export_for(320).unwrap().2.into(),
         model_path: Some(own),
@@ -211,7 +211,7 @@ fn an_input_size_the_model_does_not_take_is_a_configuration_error() {
 /// The segmenter at `size` (the export of that size, from ../shared/models
 /// or what `just setup` derives into .cache/models).
 fn model_at(size: usize) -> YoloSeg {
-    let cfg = ServiceConfig {
+    let cfg = SegmenterConfig {
         model_path: Some(export_path(size)),
         input_size: Some(size as u32),
         classes: CLASSES.iter().map(|s| s.to_string()).collect(),
@@ -305,7 +305,7 @@ fn the_480_and_640_rewrites_agree_with_the_320_export_on_large_objects() {
 /// The default export (480) keeping detections from `score` and weaker
 /// ones down to `weak` on evidence (`weak_score_threshold`).
 fn model_480(score: f32, weak: f32) -> YoloSeg {
-    let cfg = ServiceConfig {
+    let cfg = SegmenterConfig {
         model_path: Some(export_path(480)),
         classes: pipeline::config::DEFAULT_DYNAMIC_CLASSES
             .iter()

@@ -18,7 +18,7 @@ use pipeline::config::ClockMode;
 use pipeline::runtime::{run_service, InputError, ServiceArgs, ServiceContext};
 use pipeline::transport::{attach, qos, wait, waitset, Svc, Wake};
 use pipeline::views::{FrameView, MasksView};
-use scheduling::KeyframeFacts;
+use scheduling::{tracking, KeyframeFacts};
 use shared_types::names::Topic;
 use shared_types::{
     frame_flags, mask_flags, FrameHeader, MaskSource, MasksHeader, Pose, Route, RouteKind,
@@ -148,12 +148,6 @@ impl State {
     }
 }
 
-/// Real time: frames after which a keyframe stops waiting for its segmenter
-/// masks (the segmenter died or its frame was replaced) and goes in with the
-/// propagated ones; also how long without any segmenter result before
-/// keyframes are made from propagated masks again.
-const SEGMENTER_PATIENCE: u64 = 60;
-
 /// A map of at most this many keyframes is young (the core's measure: lost,
 /// it is started again): in real time a frame the keyframe rule picks goes
 /// in now with the masks it was tracked with, instead of waiting for (or
@@ -180,7 +174,7 @@ fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
     ctx.announce_ready()?;
     tracing::info!("slam ready with tracker '{}'", tracker.name());
 
-    let realtime = ctx.config.run.mode == ClockMode::Realtime;
+    let mode = ctx.config.run.mode;
     let max_frames = qos(Topic::Frames).borrowed - 1;
     let max_masks = qos(Topic::Masks).borrowed - 1;
     let mut st = State {
@@ -270,7 +264,10 @@ fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
                         header.num_instances == 0 && !header.has(mask_flags::FAILED);
                     st.last_segmented = Some(seq);
                 }
-                if let Some(waiting) = st.pending_keyframe.filter(|&k| k <= seq) {
+                if let Some(waiting) = st
+                    .pending_keyframe
+                    .filter(|&k| tracking::completes_waiting_keyframe(k, seq))
+                {
                     // The pending keyframe's own masks (or a newer frame's:
                     // its own will not come) complete it.
                     let own = waiting == seq;
@@ -299,7 +296,7 @@ fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
             st.routes.insert(r.seq, r);
         }
 
-        while let Some(track) = track_next_ready(&mut st, &mut *tracker, realtime)? {
+        while let Some(track) = track_next_ready(&mut st, &mut *tracker, mode)? {
             tracks.send(track)?;
             poses.send(Pose::of(&track))?;
             record_loops(&mut *tracker, loops_out)?;
@@ -311,7 +308,7 @@ fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
             }
         }
         if let (Some(waiting), Some(last)) = (st.pending_keyframe, st.last) {
-            if last.seq > waiting + SEGMENTER_PATIENCE {
+            if tracking::keyframe_waited_too_long(waiting, last.seq) {
                 tracing::warn!(
                     seq = waiting,
                     "no segmenter masks for this keyframe; inserted with its propagated ones"
@@ -323,31 +320,28 @@ fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
     }
 }
 
-/// Tracks one ready frame (oldest first in lockstep, newest in real-time).
+/// Tracks one ready frame ([`tracking::next_frame`]: oldest first in
+/// lockstep, newest in real time).
 fn track_next_ready(
     st: &mut State,
     tracker: &mut dyn Tracker,
-    realtime: bool,
+    mode: ClockMode,
 ) -> Result<Option<Track>> {
-    let ready = |f: &HeldFrame| {
-        let seq = f.sample.user_header().seq;
-        match st
-            .routes
-            .get(&seq)
-            .and_then(|r| RouteKind::from_u32(r.kind))
-        {
-            Some(RouteKind::Skip | RouteKind::Refuse) => true,
-            Some(_) => st.masks.iter().any(|m| m.user_header().seq == seq),
-            None => false,
-        }
-    };
-    let index = if realtime {
-        st.frames.iter().rposition(ready)
-    } else {
-        st.frames.iter().position(ready)
-    };
+    let ready: Vec<bool> = st
+        .frames
+        .iter()
+        .map(|f| {
+            let seq = f.sample.user_header().seq;
+            let route = st
+                .routes
+                .get(&seq)
+                .and_then(|r| RouteKind::from_u32(r.kind));
+            tracking::frame_ready(route, st.masks.iter().any(|m| m.user_header().seq == seq))
+        })
+        .collect();
+    let index = tracking::next_frame(mode, &ready);
     let Some(index) = index else { return Ok(None) };
-    let timing = keyframe_timing(st, index, realtime);
+    let timing = keyframe_timing(st, index, mode.is_realtime());
     let (track, waiting) = make_track(st, index, tracker, timing)?;
     // Everything up to this frame is consumed.
     let seq = track.seq;
@@ -395,9 +389,7 @@ fn keyframe_timing(st: &State, index: usize, realtime: bool) -> KeyframeTiming {
         young_map: st
             .last
             .is_some_and(|t| (1..=YOUNG_MAP_KEYFRAMES).contains(&t.counts.keyframes)),
-        segmenter_alive: st
-            .last_segmented
-            .is_some_and(|s| seq <= s + SEGMENTER_PATIENCE),
+        segmenter_alive: tracking::segmenter_alive(seq, st.last_segmented),
         scene_empty: st.scene_empty()
             && own_masks.is_some_and(|m| m.user_header().num_instances == 0),
         asked_before: st.last.is_some_and(|t| t.next_needs_keyframe != 0),

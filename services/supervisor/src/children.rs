@@ -92,9 +92,13 @@ pub fn service_program(config: &PipelineConfig, kind: ServiceKind) -> Result<Vec
     // camera in the camera-reader's place.
     let ros2_camera = kind == ServiceKind::CameraReader && config.source.kind == SourceKind::Ros2;
     let (cmd, binary, role) = match kind {
-        ServiceKind::Bridge => (&config.bridge.command, "bridge", Some("publish")),
-        _ if ros2_camera => (&config.bridge.command, "bridge", Some("camera-in")),
-        _ => (&config.service(kind).command, kind.as_str(), None),
+        ServiceKind::Bridge => (config.bridge.command.as_slice(), "bridge", Some("publish")),
+        _ if ros2_camera => (
+            config.bridge.command.as_slice(),
+            "bridge",
+            Some("camera-in"),
+        ),
+        _ => (config.process(kind).command, kind.as_str(), None),
     };
     if !cmd.is_empty() {
         return Ok(cmd.iter().cloned().chain(role.map(String::from)).collect());

@@ -323,7 +323,7 @@ pub fn evaluate(
         propagator = propagator.with_newcomer_check(NewcomerCheck::for_pipeline(
             &config.camera,
             &config.routing,
-            false,
+            pipeline::config::ClockMode::Lockstep,
         ));
     }
     let mut entries = Entries::default();

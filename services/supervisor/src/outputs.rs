@@ -192,64 +192,6 @@ impl FrameRow {
     }
 }
 
-/// Which frames `frames.csv` holds, without holding their rows: a long
-/// run's memory stays flat (the rows are read back from the file for the
-/// outputs at the end). Frames are recorded nearly in order, so a
-/// contiguous prefix plus the few recorded ahead of it is all there is.
-#[derive(Debug, Default)]
-pub struct RecordedFrames {
-    /// Every frame below this one is recorded.
-    prefix: u64,
-    ahead: std::collections::BTreeSet<u64>,
-    newest: Option<u64>,
-}
-
-impl RecordedFrames {
-    pub fn from_seqs(seqs: impl IntoIterator<Item = u64>) -> Self {
-        let mut r = Self::default();
-        for s in seqs {
-            r.insert(s);
-        }
-        r
-    }
-
-    pub fn contains(&self, seq: u64) -> bool {
-        seq < self.prefix || self.ahead.contains(&seq)
-    }
-
-    /// Notes `seq` as recorded; false if it already was.
-    pub fn insert(&mut self, seq: u64) -> bool {
-        if self.contains(seq) {
-            return false;
-        }
-        self.ahead.insert(seq);
-        while self.ahead.remove(&self.prefix) {
-            self.prefix += 1;
-        }
-        self.newest = Some(self.newest.map_or(seq, |n| n.max(seq)));
-        true
-    }
-
-    /// How many frames are recorded.
-    pub fn len(&self) -> u64 {
-        self.prefix + self.ahead.len() as u64
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
-    /// The first frame not recorded yet.
-    pub fn first_missing(&self) -> u64 {
-        self.prefix
-    }
-
-    /// The highest recorded frame.
-    pub fn newest(&self) -> Option<u64> {
-        self.newest
-    }
-}
-
 /// Append-only writer of `frames.csv`.
 pub struct FrameLog {
     file: File,
@@ -402,19 +344,6 @@ mod tests {
             .unwrap()
             .unwrap()
             .into()
-    }
-
-    #[test]
-    fn recorded_frames_keep_a_prefix_and_the_few_ahead_of_it() {
-        let mut r = RecordedFrames::from_seqs([0, 1, 2, 5]);
-        assert_eq!((r.len(), r.first_missing(), r.newest()), (4, 3, Some(5)));
-        assert!(r.contains(1) && r.contains(5) && !r.contains(3) && !r.contains(6));
-        assert!(!r.insert(5), "recorded once");
-        assert!(r.insert(4) && r.insert(3));
-        assert_eq!((r.len(), r.first_missing()), (6, 6));
-        assert!(r.ahead.is_empty(), "nothing held once contiguous");
-        assert!(r.insert(2_000_000));
-        assert_eq!((r.len(), r.newest()), (7, Some(2_000_000)));
     }
 
     #[test]

@@ -69,6 +69,28 @@ impl ReportSummary {
     }
 }
 
+/// "Restarts: 3 (segmenter 2, slam 1; restarts.log)" for a run whose
+/// services were restarted; None for one without restarts.
+fn restarts_line(run_dir: &Path) -> Option<String> {
+    let log = std::fs::read_to_string(run_dir.join(crate::run_dir::RESTARTS_FILE)).ok()?;
+    let mut by_service: Vec<(String, usize)> = Vec::new();
+    for service in log.lines().filter_map(|l| l.split_whitespace().next()) {
+        match by_service.iter_mut().find(|(s, _)| s == service) {
+            Some((_, n)) => *n += 1,
+            None => by_service.push((service.to_string(), 1)),
+        }
+    }
+    let total: usize = by_service.iter().map(|(_, n)| n).sum();
+    let each: Vec<String> = by_service.iter().map(|(s, n)| format!("{s} {n}")).collect();
+    (total > 0).then(|| {
+        format!(
+            "Restarts: {total} ({}; `{}` says when and how each died)",
+            each.join(", "),
+            crate::run_dir::RESTARTS_FILE
+        )
+    })
+}
+
 /// Writes the report of the run in `run_dir`; `rows` are its frames,
 /// `problems` what degraded or failed the run (the report opens with them).
 pub fn write(
@@ -280,6 +302,9 @@ pub fn write(
             ""
         }
     )?;
+    if let Some(line) = restarts_line(run_dir) {
+        writeln!(md, "{line}\n")?;
+    }
     writeln!(md, "## Trajectory\n")?;
     writeln!(md, "{WORLD_FRAME}\n")?;
     if monocular {
@@ -717,4 +742,30 @@ pub fn lost_after(rows: &[FrameRow], from: u64) -> usize {
     let mut after: Vec<&FrameRow> = rows.iter().filter(|r| r.seq >= from).collect();
     after.sort_unstable_by_key(|r| r.seq);
     after.iter().take_while(|r| !r.is_tracked()).count()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_report_counts_restarts_per_service_from_the_restarts_log() {
+        let dir = std::env::temp_dir().join(format!("dynslam-restarts-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        assert_eq!(restarts_line(&dir), None, "no log: no line");
+        for line in [
+            "segmenter pid 10 killed by SIGKILL next_seq 30",
+            "slam pid 11 killed by SIGKILL next_seq 41",
+            "segmenter pid 12 killed by SIGKILL next_seq 77",
+        ] {
+            crate::run_dir::log_restart(&dir, line).unwrap();
+        }
+        let line = restarts_line(&dir).unwrap();
+        assert!(
+            line.starts_with("Restarts: 3 (segmenter 2, slam 1;"),
+            "{line}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

@@ -1,7 +1,6 @@
 //! The supervisor's run loop: start the services, route every frame, record
 //! every Track, restart what dies, stop everything in order, write outputs.
 
-use std::collections::HashMap;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::Child;
@@ -10,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Result};
 use pipeline::clock::now_ns;
-use pipeline::config::{ClockMode, PipelineConfig, SourceKind};
+use pipeline::config::{PipelineConfig, SourceKind};
 use pipeline::progress::Progress;
 use pipeline::transport::{
     attach, cleanup_dead_nodes, remove_run_files, run_files, wait, waitset, Transport, Wake,
@@ -29,9 +28,10 @@ use crate::children::{
 use crate::external::ExternalStream;
 use crate::latency;
 use crate::mask_record::MaskRecorder;
-use crate::outputs::{write_tum, FrameLog, FrameRow, RecordedFrames};
+use crate::outputs::{write_tum, FrameLog, FrameRow};
 use crate::run_dir::{self, ChildStatus, Status};
-use scheduling::routing::{Availability, Router};
+use scheduling::ledger::{Arrival, Dropped, Input, Ledger};
+use scheduling::routing::Availability;
 
 /// The SLAM service writes its map here (in the run folder) when stopped.
 pub const MAP_FILE: &str = "map.ply";
@@ -111,31 +111,12 @@ impl Service {
     }
 }
 
-/// Real time: frames at most between their route and their Track (one
-/// being tracked, one being masked). A route older than the timeout no
-/// longer counts: its worker died, or the frame was replaced in the worker
-/// before its turn under load (with 1 s, 60 fps under load stalled for
-/// a second at a time: end-to-end p99 1.05 s).
-const REALTIME_IN_FLIGHT: usize = 2;
-const REALTIME_FLIGHT_TIMEOUT: Duration = Duration::from_millis(300);
-
-/// A frame the supervisor has seen but whose fate is not recorded yet.
-#[derive(Debug, Clone)]
-struct Pending {
+/// What the supervisor keeps with a pending frame (its ledger holds the
+/// rest): copied into the frame's Route and `frames.csv` row.
+#[derive(Debug, Clone, Copy)]
+struct FrameExtra {
     timestamp: f64,
-    bad: bool,
-    /// The supervisor found the (external) frame unusable: routed
-    /// [`RouteKind::Refuse`], so SLAM does not read its pixels.
-    refused: bool,
-    /// The frame's stamps so far (copied into its Route).
     stamps: shared_types::StageStamps,
-    /// Decided (and sent) route; `None` while waiting for the previous Track.
-    route: Option<RouteKind>,
-    /// When the route was sent (real time: frames in flight are bounded).
-    routed_at: Option<Instant>,
-    /// A set of masks for the frame was published (the watchdog's clue).
-    masks_seen: bool,
-    note: String,
 }
 
 /// Kills what a previous supervisor of this run left behind and removes the
@@ -215,18 +196,12 @@ struct Supervisor {
     run_dir: PathBuf,
     services: Vec<Service>,
     log: FrameLog,
-    /// The frames `frames.csv` holds (their rows stay in the file).
-    recorded: RecordedFrames,
-    pending: HashMap<u64, Pending>,
-    router: Router,
-    next_seq: u64,
-    total: Option<u64>,
+    /// Every frame from its arrival to its row in `frames.csv`: the
+    /// timing, routing and drop decisions (the scheduling crate's).
+    ledger: Ledger<FrameExtra>,
     restarts: u64,
     status_dirty: bool,
     fatal: Option<String>,
-    /// When a frame was last recorded (or a service last came up): the
-    /// watchdog's clock.
-    last_progress: Instant,
     /// The newest tracked frames, oldest first: a restarted SLAM resumes
     /// its motion model from them (`--resume-poses`).
     recent_tracked: RecentTracked,
@@ -260,7 +235,7 @@ impl Supervisor {
         }
         if kind == ServiceKind::CameraReader {
             args.push("--start-seq".into());
-            args.push(self.next_seq.to_string());
+            args.push(self.ledger.next_seq().to_string());
         }
         if kind == ServiceKind::Slam {
             args.push("--map-out".into());
@@ -273,7 +248,7 @@ impl Supervisor {
             args.push("--checkpoint".into());
             let checkpoint = run_dir.join(crate::map_files::CHECKPOINT_FILE);
             args.push(checkpoint.to_string_lossy().into_owned());
-            if self.next_seq > 0 {
+            if self.ledger.next_seq() > 0 {
                 // A restart (or a resume): does it go on in the map?
                 let from = if checkpoint.is_file() {
                     let poses = run_dir.join(crate::map_files::RESUME_POSES_FILE);
@@ -290,14 +265,14 @@ impl Supervisor {
                 } else {
                     "empty"
                 };
-                if let Err(e) = run_dir::log_slam_start(&run_dir, self.next_seq, from) {
+                if let Err(e) = run_dir::log_slam_start(&run_dir, self.ledger.next_seq(), from) {
                     tracing::warn!("cannot record the SLAM start: {e:#}");
                 }
             }
         }
         let nice = self
             .config
-            .service(kind)
+            .process(kind)
             .nice
             .filter(|_| self.slam_has_tracked());
         let svc = self.svc(kind);
@@ -329,19 +304,29 @@ impl Supervisor {
         }
     }
 
-    /// Records the fate of one frame (once).
-    fn record(&mut self, row: FrameRow) -> Result<()> {
-        if self.recorded.contains(row.seq) {
-            return Ok(());
-        }
+    /// Writes the row of a frame whose fate the ledger has settled.
+    fn write_row(&mut self, row: FrameRow) -> Result<()> {
         self.log.append(&row)?;
         self.recent_tracked.offer(&row);
-        self.last_progress = Instant::now();
-        self.pending.remove(&row.seq);
-        self.recorded.insert(row.seq);
-        self.next_seq = self.recorded.first_missing();
         self.status_dirty = true;
         Ok(())
+    }
+
+    /// Writes the row of a frame the ledger dropped.
+    fn write_dropped(&mut self, d: Dropped<FrameExtra>) -> Result<()> {
+        self.write_row(FrameRow {
+            seq: d.seq,
+            timestamp: d.frame.as_ref().map_or(0.0, |p| p.extra.timestamp),
+            state: "dropped".into(),
+            route: d
+                .frame
+                .and_then(|p| p.route)
+                .map_or("none", |r| r.as_str())
+                .into(),
+            mask_source: "none".into(),
+            note: d.why,
+            ..Default::default()
+        })
     }
 
     /// The SLAM has tracked a frame (in this run or, resumed, before it).
@@ -357,7 +342,7 @@ impl Supervisor {
     /// Every running service with a `nice` key gets it.
     fn apply_niceness(&self) {
         for svc in &self.services {
-            let (Some(nice), Some(child)) = (self.config.service(svc.kind).nice, &svc.child) else {
+            let (Some(nice), Some(child)) = (self.config.process(svc.kind).nice, &svc.child) else {
                 continue;
             };
             match renice(child.id(), nice) {
@@ -368,35 +353,27 @@ impl Supervisor {
     }
 
     fn on_track(&mut self, t: Track) -> Result<()> {
-        if self.recorded.contains(t.seq) {
-            return Ok(());
-        }
         let received = now_ns();
-        if self.config.run.mode == ClockMode::Realtime {
-            // Frames older than a tracked one will never be tracked: dropped.
-            let older: Vec<u64> = self
-                .pending
-                .keys()
-                .copied()
-                .filter(|&s| s < t.seq)
-                .collect();
-            for seq in older {
-                self.record_dropped(seq, "a newer frame was tracked first")?;
-            }
-        }
-        let pending = self.pending.get(&t.seq).cloned();
         let state = TrackState::from_u32(t.state);
+        let skipped = state == Some(TrackState::Skipped);
+        let next_keyframe = t.next_needs_keyframe != 0;
+        let Some(tracked) = self
+            .ledger
+            .on_track(t.seq, skipped, next_keyframe, Instant::now())
+        else {
+            return Ok(());
+        };
+        for d in tracked.dropped {
+            self.write_dropped(d)?;
+        }
+        let pending = tracked.frame;
         let route = pending
             .as_ref()
             .and_then(|p| p.route)
             .map(|r| r.as_str())
             .unwrap_or("none");
         let first_tracked = !self.slam_has_tracked() && state.is_some_and(|s| s.is_tracked());
-        // A skipped (bad) frame was not tracked: it has no opinion on keyframes.
-        if state != Some(TrackState::Skipped) {
-            self.router.on_track(t.next_needs_keyframe != 0);
-        }
-        self.record(FrameRow {
+        self.write_row(FrameRow {
             seq: t.seq,
             timestamp: t.source_timestamp,
             state: state.map(|s| s.as_str()).unwrap_or("invalid").to_string(),
@@ -427,49 +404,21 @@ impl Supervisor {
     }
 
     /// Real time: a worker will not make masks for `h.seq` (the frame was
-    /// replaced before its turn). A frame tracked by those masks is dropped
-    /// now, which frees its place among the frames in flight; a background
-    /// segment frees the segmenter.
+    /// replaced before its turn); the ledger may drop the frame.
     fn on_masks_gone(&mut self, h: &MasksHeader) -> Result<()> {
-        match MaskSource::from_u32(h.source) {
-            Some(MaskSource::Segmenter) => {
-                self.router.on_segment_gone(h.seq);
-                if self.pending.get(&h.seq).and_then(|p| p.route) == Some(RouteKind::Segment) {
-                    self.record_dropped(h.seq, "replaced in the segmenter before its turn")?;
-                }
-            }
-            Some(MaskSource::Propagator) => {
-                let route = self.pending.get(&h.seq).and_then(|p| p.route);
-                if route.is_some_and(|r| r.propagates()) {
-                    self.record_dropped(h.seq, "replaced in the propagator before its turn")?;
-                }
-            }
-            _ => {}
+        let Some(source) = MaskSource::from_u32(h.source) else {
+            return Ok(());
+        };
+        match self.ledger.on_masks_gone(h.seq, source, Instant::now()) {
+            Some(d) => self.write_dropped(d),
+            None => Ok(()),
         }
-        Ok(())
     }
 
-    fn record_dropped(&mut self, seq: u64, why: &str) -> Result<()> {
-        let p = self.pending.get(&seq).cloned();
-        self.record(FrameRow {
-            seq,
-            timestamp: p.as_ref().map(|p| p.timestamp).unwrap_or(0.0),
-            state: "dropped".into(),
-            route: p
-                .and_then(|p| p.route)
-                .map(|r| r.as_str())
-                .unwrap_or("none")
-                .into(),
-            mask_source: "none".into(),
-            note: why.into(),
-            ..Default::default()
-        })
-    }
-
-    /// Notes a frame (or its replay). Its route is decided by
-    /// [`Self::route_ready`]; a replayed frame gets its first route again.
-    /// `problem`: why an external frame cannot be tracked (recorded as bad
-    /// input, routed Skip).
+    /// Notes a frame (or its replay); the ledger decides its route
+    /// ([`Self::route_ready`]), or that it is dropped, or that a replay
+    /// gets its first route again. `problem`: why an external frame cannot
+    /// be tracked (recorded as bad input, routed Refuse).
     fn on_frame(
         &mut self,
         h: &FrameHeader,
@@ -477,160 +426,56 @@ impl Supervisor {
         routes: &pipeline::transport::Sender<Route, ()>,
     ) -> Result<()> {
         tracing::debug!(seq = h.seq, flags = h.flags, "frame");
+        let now = Instant::now();
         if h.has(frame_flags::END_OF_STREAM) {
-            if self.total != Some(h.seq) {
+            if self.ledger.on_end_of_stream(h.seq, now) {
                 tracing::info!(frames = h.seq, "end of stream");
             }
-            self.total = Some(h.seq);
             self.status_dirty = true;
             return Ok(());
         }
-        if self.recorded.contains(h.seq) {
-            if let Some(external) = &mut self.external {
-                external.repeated(h);
-            }
-            return Ok(());
-        }
-        let bad = h.has(frame_flags::BAD_INPUT) || problem.is_some();
-        let entry = self.pending.entry(h.seq).or_insert_with(|| Pending {
+        let input = match problem {
+            Some(why) => Input::Refused(why),
+            None if h.has(frame_flags::BAD_INPUT) => Input::Bad(read_error_text(&h.error)),
+            None => Input::Good,
+        };
+        let extra = FrameExtra {
             timestamp: h.source_timestamp,
-            bad,
-            refused: problem.is_some(),
             stamps: h.stamps,
-            route: None,
-            routed_at: None,
-            masks_seen: false,
-            note: match (&problem, bad) {
-                (Some(why), _) => format!("bad input: {why}"),
-                (None, true) => format!("bad input: {}", read_error_text(&h.error)),
-                (None, false) => String::new(),
-            },
-        });
-        entry.stamps = h.stamps;
-        if h.has(frame_flags::DROPPED_AT_SOURCE) {
-            return self.record_dropped(
-                h.seq,
-                "left out by the camera-reader: the pipeline was busy with older frames",
-            );
+        };
+        let left_out = h.has(frame_flags::DROPPED_AT_SOURCE);
+        match self.ledger.on_frame(h.seq, input, left_out, extra, now) {
+            Arrival::AlreadyRecorded => {
+                if let Some(external) = &mut self.external {
+                    external.repeated(h);
+                }
+                Ok(())
+            }
+            Arrival::Dropped(d) => self.write_dropped(d),
+            Arrival::Resend(kind) => {
+                send_route(routes, h.seq, kind, h.stamps, h.has(frame_flags::REPLAY))
+            }
+            Arrival::Waiting => Ok(()),
         }
-        if let Some(kind) = entry.route {
-            return send_route(routes, h.seq, kind, h.stamps, h.has(frame_flags::REPLAY));
-        }
-        let late = self.config.run.mode == ClockMode::Realtime
-            && self.recorded.newest().is_some_and(|newest| newest > h.seq);
-        if late {
-            // SLAM only moves forward: a frame older than a tracked one that
-            // reaches us late is already dropped.
-            return self.record_dropped(h.seq, "a newer frame was tracked first");
-        }
-        Ok(())
     }
 
-    /// Decides and sends the routes of waiting frames. In lockstep a frame
-    /// is routed only once the previous frame's Track is recorded: its
-    /// keyframe flag decides the route, and iceoryx2 does not order
-    /// deliveries across services (the reader may publish frame n+1 before
-    /// Track(n) reaches the supervisor's queue).
+    /// Sends the routes the ledger decides for waiting frames.
     fn route_ready(&mut self, routes: &pipeline::transport::Sender<Route, ()>) -> Result<()> {
-        let lockstep = self.config.run.mode == ClockMode::Lockstep;
-        let mut waiting: Vec<u64> = self
-            .pending
-            .iter()
-            .filter(|(_, p)| p.route.is_none())
-            .map(|(&s, _)| s)
-            .collect();
-        waiting.sort_unstable();
-        // Real time: the newest frame first, and only while fewer than
-        // REALTIME_IN_FLIGHT frames are between routing and their Track. The
-        // propagator then masks only frames SLAM will track, instead of
-        // burning the cores SLAM needs on frames a newer one replaces; the
-        // frames passed over are dropped when a newer one is tracked.
-        let mut room = usize::MAX;
-        if !lockstep {
-            waiting.reverse();
-            let in_flight = self
-                .pending
-                .values()
-                .filter(|p| {
-                    p.route.is_some_and(RouteKind::makes_masks)
-                        && p.routed_at
-                            .is_some_and(|t| t.elapsed() < REALTIME_FLIGHT_TIMEOUT)
-                })
-                .count();
-            room = REALTIME_IN_FLIGHT.saturating_sub(in_flight);
-        }
-        for seq in waiting {
-            if lockstep && seq > 0 && !self.recorded.contains(seq - 1) {
-                break;
-            }
-            if room == 0 {
-                break;
-            }
-            let availability = self.availability();
-            let no_masks = self.config.routing.no_masks;
-            let p = self
-                .pending
-                .get_mut(&seq)
-                .expect("waiting frame is pending");
-            let kind = if p.refused {
-                RouteKind::Refuse
-            } else if let Some(kind) = self.router.route(seq, p.bad, availability) {
-                kind
-            } else {
-                continue; // real time: waits for the first segmenter result
-            };
-            p.route = Some(kind);
-            p.routed_at = Some(Instant::now());
-            if kind == RouteKind::Skip && !p.bad && !no_masks {
-                p.note = "unmasked: no mask service available".into();
-            }
-            if self.router.last_was_request() {
-                p.note =
-                    "segmented early: the propagator saw something move that it does not follow"
-                        .into();
-            }
-            let stamps = p.stamps;
-            send_route(routes, seq, kind, stamps, false)?;
-            if kind.makes_masks() {
-                room = room.saturating_sub(1);
-            }
+        for r in self.ledger.route_ready(self.availability(), Instant::now()) {
+            send_route(routes, r.seq, r.kind, r.extra.stamps, false)?;
         }
         Ok(())
     }
 
-    /// Frames routed to a mask worker that has been given up on never get
-    /// their masks: they go on unmasked, told to SLAM by a second Route
-    /// (which replaces the first), so a lockstep run never waits for them.
+    /// Frames routed to a mask worker that has been given up on go on
+    /// unmasked: a second Route (Skip) replaces the first.
     fn reroute_orphans(&mut self, routes: &pipeline::transport::Sender<Route, ()>) -> Result<()> {
-        let availability = self.availability();
-        let mut orphans: Vec<u64> = self
-            .pending
-            .iter()
-            .filter(|(_, p)| match p.route {
-                Some(RouteKind::Segment) => !availability.segmenter,
-                // Tracked with the propagator's masks; the segmenter's only
-                // re-prompt the propagator.
-                Some(RouteKind::Propagate | RouteKind::SegmentBehind) => !availability.propagator,
-                _ => false,
-            })
-            .map(|(&seq, _)| seq)
-            .collect();
-        orphans.sort_unstable();
-        for seq in orphans {
-            let p = self.pending.get_mut(&seq).expect("an orphan is pending");
-            let worker = match p.route {
-                Some(RouteKind::Segment) => "segmenter",
-                _ => "propagator",
-            };
+        for (r, worker) in self.ledger.reroute_orphans(self.availability()) {
             tracing::warn!(
-                seq,
+                seq = r.seq,
                 "the {worker} was given up on with this frame routed to it; it goes on unmasked"
             );
-            p.route = Some(RouteKind::Skip);
-            p.note =
-                format!("unmasked: the {worker} was given up on while this frame was routed to it");
-            let stamps = p.stamps;
-            send_route(routes, seq, RouteKind::Skip, stamps, false)?;
+            send_route(routes, r.seq, r.kind, r.extra.stamps, false)?;
         }
         Ok(())
     }
@@ -696,7 +541,7 @@ impl Supervisor {
                         &format!(
                             "{} pid {pid} {how} next_seq {}",
                             kind.as_str(),
-                            self.next_seq
+                            self.ledger.next_seq()
                         ),
                     )?;
                 }
@@ -754,8 +599,8 @@ impl Supervisor {
             run_id: self.names.run_id().to_string(),
             supervisor_pid: std::process::id(),
             restarts: self.restarts,
-            frames_done: self.recorded.len(),
-            frames_total: self.total,
+            frames_done: self.ledger.recorded().len(),
+            frames_total: self.ledger.total(),
             children: self
                 .services
                 .iter()
@@ -820,76 +665,56 @@ impl Supervisor {
         self.status_dirty = true;
     }
 
-    fn complete(&self) -> bool {
-        self.total.is_some_and(|t| self.next_seq >= t)
-    }
-
     /// The watchdog: every service is up, frames are due, yet none has been
     /// recorded for `supervisor.stall_timeout_s`. The oldest pending frame
-    /// says which stage holds it; that service is killed (and restarted like
-    /// a crash, so lockstep replays the frame), with the stage in the log.
-    /// A stall no service explains fails the run with the same words.
+    /// says which stage holds it ([`Ledger::stall`]); that service is killed
+    /// (and restarted like a crash, so lockstep replays the frame), with the
+    /// stage in the log. A stall no service explains fails the run with the
+    /// same words.
     fn check_stall(&mut self) {
         let timeout = self.config.supervisor.stall_timeout_s;
         // An external publisher may start whenever it likes.
         let waiting_for_publisher = self.external.as_ref().is_some_and(|e| e.frames_seen() == 0);
-        if timeout == 0
-            || waiting_for_publisher
-            || self.complete()
-            || self.last_progress.elapsed() < Duration::from_secs(timeout)
-            || !self.services.iter().all(|s| {
+        let settled = !waiting_for_publisher
+            && self.services.iter().all(|s| {
                 matches!(
                     s.state,
                     SvcState::Ready | SvcState::Failed { .. } | SvcState::External
                 )
-            })
-        {
+            });
+        let now = Instant::now();
+        let Some(stall) = self
+            .ledger
+            .stall(Duration::from_secs(timeout), settled, now)
+        else {
             return;
-        }
-        let oldest = self.pending.iter().min_by_key(|(&seq, _)| seq);
-        let (kind, what) = match oldest {
-            None => (
-                Some(ServiceKind::CameraReader),
-                if self.external.is_some() {
-                    format!(
-                        "the external publisher sent no frame after {} (and no end of stream)",
-                        self.next_seq
-                    )
-                } else {
-                    format!("no frame after {} reached the supervisor", self.next_seq)
-                },
+        };
+        let what = match stall.seq {
+            None if self.external.is_some() => format!(
+                "the external publisher sent no frame after {} (and no end of stream)",
+                self.ledger.next_seq()
             ),
-            Some((&seq, p)) => {
-                let held_by = match p.route {
-                    // Real time routes nothing before the first segmenter result.
-                    None if self.config.run.mode == ClockMode::Realtime => {
-                        Some(ServiceKind::Segmenter)
-                    }
-                    None => None,
-                    Some(RouteKind::Skip | RouteKind::Refuse) => Some(ServiceKind::Slam),
-                    Some(_) if p.masks_seen => Some(ServiceKind::Slam),
-                    Some(RouteKind::Segment) => Some(ServiceKind::Segmenter),
-                    Some(_) => Some(ServiceKind::Propagator),
-                };
-                let route = p.route.map_or("not routed", |r| r.as_str());
-                let stage = match held_by {
-                    Some(ServiceKind::Slam) => "waiting for its Track from slam",
-                    Some(ServiceKind::Segmenter) => "waiting for its masks from the segmenter",
-                    Some(ServiceKind::Propagator) => "waiting for its masks from the propagator",
-                    _ => "waiting for its route",
-                };
-                (held_by, format!("frame {seq} (route {route}) is {stage}"))
+            None => format!(
+                "no frame after {} reached the supervisor",
+                self.ledger.next_seq()
+            ),
+            Some(seq) => {
+                let route = stall.route.map_or("not routed", |r| r.as_str());
+                format!("frame {seq} (route {route}) is {}", stall.stage)
             }
         };
         let why = format!("no frame recorded for {timeout} s (supervisor.stall_timeout_s): {what}");
-        match kind.and_then(|k| self.svc(k).pid().map(|pid| (k, pid))) {
+        match stall
+            .held_by
+            .and_then(|k| self.svc(k).pid().map(|pid| (k, pid)))
+        {
             Some((k, pid)) => {
                 tracing::error!(
                     "stalled: {why}; killing {} (pid {pid}) to restart it",
                     k.as_str()
                 );
                 signal(pid, libc::SIGKILL);
-                self.last_progress = Instant::now();
+                self.ledger.note_progress(now);
             }
             None => self.fatal = Some(format!("the run stalled: {why}")),
         }
@@ -953,10 +778,12 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
     let _lock = run_dir::RunLock::acquire(names.run_id())?;
     clean_previous(&run_dir, &names)?;
     let (log, old_rows) = FrameLog::open(&run_dir)?;
-    let mut router = match config.run.mode {
-        ClockMode::Lockstep => Router::new(config.routing.clone()),
-        ClockMode::Realtime => Router::realtime(config.routing.clone()),
-    };
+    let mut ledger = Ledger::new(
+        config.run.mode,
+        config.routing.clone(),
+        old_rows.iter().map(|r| r.seq),
+        Instant::now(),
+    );
     if let Some(last) = old_rows.last() {
         let last_segment = old_rows
             .iter()
@@ -966,7 +793,7 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
                     || r.route == RouteKind::SegmentBehind.as_str()
             })
             .map(|r| r.seq);
-        router.resume(last.next_keyframe, last_segment);
+        ledger.resume(last.next_keyframe, last_segment);
         tracing::info!(frames = old_rows.len(), "resuming run {}", info.run_id);
         if config.services.slam.backend == "orb-rgbd" {
             match crate::map_files::checkpoint(&run_dir) {
@@ -1002,20 +829,14 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
         run_dir: run_dir.clone(),
         services,
         log,
-        recorded: RecordedFrames::from_seqs(old_rows.iter().map(|r| r.seq)),
-        pending: HashMap::new(),
-        router,
-        next_seq: 0,
-        total: None,
+        ledger,
         restarts: run_dir::restart_count(&run_dir),
         status_dirty: true,
         fatal: None,
-        last_progress: Instant::now(),
         recent_tracked: RecentTracked::from_rows(&old_rows),
         external: (config.source.kind == SourceKind::External).then(ExternalStream::default),
         config,
     };
-    sup.next_seq = sup.recorded.first_missing();
     drop(old_rows);
     if let Err(e) = pipeline::transport::check_shm_capacity(&sup.config) {
         return Err(fail_run(&mut sup, &names, e));
@@ -1033,7 +854,7 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
             return Err(fail_run(&mut sup, &names, e));
         }
     };
-    let (requests, routed) = sup.router.requests();
+    let (requests, routed) = sup.ledger.router().requests();
     if requests > 0 {
         tracing::info!(
             "early segmenter requests from the propagator: {requests} ({routed} had a frame segmented for them; the rest came with a keyframe anyway)"
@@ -1124,7 +945,6 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
     let _c = attach(&ws, &lifecycle)?;
     let _d = attach(&ws, &masks)?;
     let period = Duration::from_millis(sup.config.supervisor.watch_period_ms);
-    let lockstep = sup.config.run.mode == ClockMode::Lockstep;
 
     let kinds: Vec<ServiceKind> = sup
         .services
@@ -1140,7 +960,6 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
     let mut progress = Progress::new("frames", expected);
     let mut shown = 0u64;
     let mut last_sweep = Instant::now();
-    let mut end_seen_at: Option<Instant> = None;
     let mut interrupted = false;
     loop {
         if wait(&ws, period)? == Wake::Terminate {
@@ -1161,16 +980,11 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
             let was_restart = svc.restarts > 0;
             svc.state = SvcState::Ready;
             sup.status_dirty = true;
-            sup.last_progress = Instant::now();
             tracing::info!("{} ready (pid {})", kind.as_str(), msg.pid);
             // Lockstep recovery: the in-flight frame may have been lost with
             // the dead process; the reader publishes it again.
-            // The bridge is off the frame path: nothing to replay for it.
-            let on_frame_path = !matches!(kind, ServiceKind::CameraReader | ServiceKind::Bridge);
-            if lockstep && was_restart && on_frame_path && !sup.complete() {
-                control.send(Control {
-                    replay_seq: sup.next_seq,
-                })?;
+            if let Some(replay_seq) = sup.ledger.replay_for(kind, was_restart, Instant::now()) {
+                control.send(Control { replay_seq })?;
             }
         }
         // The source starts once the services that consume it are up.
@@ -1214,20 +1028,9 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
             }
             match MasksView::new(sample.user_header(), sample.payload()) {
                 Ok(view) => {
-                    if view.source() == MaskSource::Segmenter {
-                        sup.router.on_segmenter_result(view.header.seq);
-                    }
-                    // Lockstep stays deterministic: the masks of frame N were
-                    // published before SLAM's Track N, which frame N+1's
-                    // route waits for.
-                    if view.source() == MaskSource::Propagator
-                        && view.header.has(mask_flags::SEGMENT_WANTED)
-                    {
-                        sup.router.on_segment_wanted();
-                    }
-                    if let Some(p) = sup.pending.get_mut(&view.header.seq) {
-                        p.masks_seen = true;
-                    }
+                    let segment_wanted = view.header.has(mask_flags::SEGMENT_WANTED);
+                    sup.ledger
+                        .on_masks(view.header.seq, view.source(), segment_wanted);
                     recorder.record(&view)
                 }
                 Err(e) => tracing::warn!("not recording masks: {e:#}"),
@@ -1248,7 +1051,7 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
         sup.route_ready(&routes)?;
         // Services only fail when one dies: what follows from it is decided then.
         if sup.watch_children(false)? {
-            sup.router.on_worker_lost();
+            sup.ledger.on_worker_lost();
             sup.reroute_orphans(&routes)?;
             if sup.config.run.require_masks {
                 if let Some(reason) = sup.degraded().first() {
@@ -1271,23 +1074,16 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
             cleanup_dead_nodes(&sup.names)?;
             last_sweep = Instant::now();
         }
-        if expected > 0 && sup.recorded.len() != shown {
-            shown = sup.recorded.len();
+        if expected > 0 && sup.ledger.recorded().len() != shown {
+            shown = sup.ledger.recorded().len();
             progress.set(shown);
         }
-        if sup.complete() {
+        if sup.ledger.complete() {
             break;
         }
-        if let Some(total) = sup.total {
-            // Real time: the last frames may never be tracked; give them a moment.
-            let seen = *end_seen_at.get_or_insert_with(Instant::now);
-            if !lockstep && seen.elapsed() > Duration::from_secs(2) {
-                for seq in sup.next_seq..total {
-                    if !sup.recorded.contains(seq) {
-                        sup.record_dropped(seq, "not tracked before the end of the stream")?;
-                    }
-                }
-            }
+        // Real time: the last frames may never be tracked; they get a moment.
+        for d in sup.ledger.on_tick(Instant::now()) {
+            sup.write_dropped(d)?;
         }
 
         if sup.status_dirty {

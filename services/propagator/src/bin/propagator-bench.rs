@@ -19,7 +19,7 @@ use anyhow::{Context, Result};
 use camera_reader::decode::decode_depth_into;
 use camera_reader::source::tum_folder;
 use clap::Parser;
-use pipeline::config::{CameraConfig, OnnxRuntimeConfig, RoutingConfig, ServiceConfig};
+use pipeline::config::{CameraConfig, OnnxRuntimeConfig, PropagatorConfig, RoutingConfig};
 use pipeline::stats::percentile;
 use propagator::newcomers::{DepthImage, NewcomerCheck};
 use propagator::propagate::{LkPropagator, PropagatorParams};
@@ -58,7 +58,7 @@ fn sam2(encoder: &std::path::Path, decoder: &std::path::Path) -> Result<Sam2Prop
             .to_string_lossy()
             .into_owned()
     };
-    let cfg = ServiceConfig {
+    let cfg = PropagatorConfig {
         model: name(encoder),
         model_path: Some(encoder.to_path_buf()),
         model_sha256: sha(encoder)?,
@@ -195,8 +195,11 @@ fn time_newcomer_check(
     entries: &[camera_reader::source::FrameEntry],
     frames: usize,
 ) -> Result<(Vec<f64>, u64)> {
-    let mut check =
-        NewcomerCheck::for_pipeline(&CameraConfig::default(), &RoutingConfig::default(), false);
+    let mut check = NewcomerCheck::for_pipeline(
+        &CameraConfig::default(),
+        &RoutingConfig::default(),
+        pipeline::config::ClockMode::Lockstep,
+    );
     let lk = PropagatorParams::default();
     let mut prev: Option<Pyramid> = None;
     let mut depth = Vec::new();

@@ -575,23 +575,39 @@ pub fn cleanup_dead_nodes(names: &RunNames) -> Result<CleanupReport> {
     Ok(report)
 }
 
-/// Folders where iceoryx2 keeps a run's files.
-fn resource_dirs(names: &RunNames) -> Result<Vec<PathBuf>> {
-    let config = iceoryx_config(names)?;
-    let root = PathBuf::from(config.global.root_path().to_string());
-    Ok(vec![PathBuf::from("/dev/shm"), root])
+/// Folders where iceoryx2 keeps its files (shared memory, and the
+/// bookkeeping under its root path).
+fn resource_dirs() -> Vec<PathBuf> {
+    let root = PathBuf::from(Config::default().global.root_path().to_string());
+    vec![PathBuf::from("/dev/shm"), root]
+}
+
+/// Every iceoryx2 file whose name starts with `prefix` (a run's, or a
+/// bench's own prefix).
+pub fn prefixed_files(prefix: &str) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    for dir in resource_dirs() {
+        collect_prefixed(&dir, prefix, &mut out);
+    }
+    out.sort();
+    out
+}
+
+/// Removes every iceoryx2 file whose name starts with `prefix`. Only call
+/// when no process using that prefix is alive.
+pub fn remove_prefixed_files(prefix: &str) -> Result<usize> {
+    let files = prefixed_files(prefix);
+    for f in &files {
+        std::fs::remove_file(f)
+            .with_context(|| format!("cannot remove stale file {}", f.display()))?;
+    }
+    Ok(files.len())
 }
 
 /// Every file of the run's prefix still on disk (shared memory and
 /// bookkeeping files). Empty after a clean shutdown.
 pub fn run_files(names: &RunNames) -> Result<Vec<PathBuf>> {
-    let prefix = names.file_prefix();
-    let mut out = Vec::new();
-    for dir in resource_dirs(names)? {
-        collect_prefixed(&dir, &prefix, &mut out);
-    }
-    out.sort();
-    Ok(out)
+    Ok(prefixed_files(&names.file_prefix()))
 }
 
 fn collect_prefixed(dir: &Path, prefix: &str, out: &mut Vec<PathBuf>) {
@@ -609,8 +625,6 @@ fn collect_prefixed(dir: &Path, prefix: &str, out: &mut Vec<PathBuf>) {
     }
 }
 
-/// Removes every file of the run's prefix. Only call when no process of the
-/// run is alive (after shutdown, or before restarting a killed supervisor).
 /// Makes every file of the run owner-only (0600). iceoryx2 creates its
 /// global management file world-writable (0666) whatever the umask; another
 /// local user could overwrite it and break every later service start.
@@ -631,13 +645,10 @@ pub fn make_run_files_private(names: &RunNames) -> Result<usize> {
     Ok(changed)
 }
 
+/// Removes every file of the run's prefix. Only call when no process of the
+/// run is alive (after shutdown, or before restarting a killed supervisor).
 pub fn remove_run_files(names: &RunNames) -> Result<usize> {
-    let files = run_files(names)?;
-    for f in &files {
-        std::fs::remove_file(f)
-            .with_context(|| format!("cannot remove stale file {}", f.display()))?;
-    }
-    Ok(files.len())
+    remove_prefixed_files(&names.file_prefix())
 }
 
 #[cfg(test)]

@@ -93,3 +93,28 @@ fn subscriber_created_after_the_publisher_still_receives() {
     drop((got, own, other_tx, tx, rx, a, b, c));
     remove_run_files(&n).unwrap();
 }
+
+#[test]
+fn the_wakeup_bench_leaves_no_iceoryx2_file_behind() {
+    let out = std::env::temp_dir().join(format!("wakeup-{}.json", std::process::id()));
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_wakeup-bench"))
+        .args(["--messages", "20", "--out"])
+        .arg(&out)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Its three ways each use the prefix `dsl_wakeup<its pid>_<way>_`.
+    let prefix = format!("dsl_wakeup{}_", child.id());
+    let run = child.wait_with_output().unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let _ = std::fs::remove_file(&out);
+    let left = pipeline::transport::prefixed_files(&prefix);
+    assert!(left.is_empty(), "left behind: {left:?}");
+    let said = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(said.matches("removed the bench's").count(), 3, "{said}");
+}

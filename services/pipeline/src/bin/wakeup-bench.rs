@@ -157,9 +157,26 @@ fn main() -> Result<()> {
 }
 
 /// Sends the series to a receiver process of `way`; its (p50, p99) in us.
+/// The bench's iceoryx2 files are removed afterwards, as a run's are (its
+/// management file is world-writable: none may stay in /dev/shm).
 fn drive<S: iceoryx2::service::Service + Debug>(way: &str, messages: usize) -> Result<(f64, f64)> {
     let prefix = format!("dsl_wakeup{}_{way}_", std::process::id());
-    let (_node, pubsub, event) = services::<S>(&prefix)?;
+    let figures = drive_with::<S>(way, messages, &prefix);
+    match pipeline::transport::remove_prefixed_files(&prefix) {
+        Ok(n) => eprintln!("{way}: removed the bench's {n} iceoryx2 files"),
+        Err(e) => eprintln!("{way}: cannot remove the bench's iceoryx2 files: {e:#}"),
+    }
+    figures
+}
+
+/// [`drive`] with the bench's iceoryx2 `prefix`; every port and node is
+/// dropped on return.
+fn drive_with<S: iceoryx2::service::Service + Debug>(
+    way: &str,
+    messages: usize,
+    prefix: &str,
+) -> Result<(f64, f64)> {
+    let (_node, pubsub, event) = services::<S>(prefix)?;
     let publisher = pubsub
         .publisher_builder()
         .create()
@@ -169,7 +186,7 @@ fn drive<S: iceoryx2::service::Service + Debug>(way: &str, messages: usize) -> R
         .create()
         .map_err(|e| anyhow!("notifier: {e:?}"))?;
     let mut child = Command::new(std::env::current_exe()?)
-        .args(["--receive", way, "--prefix", &prefix, "--messages"])
+        .args(["--receive", way, "--prefix", prefix, "--messages"])
         .arg(messages.to_string())
         .stdout(Stdio::piped())
         .spawn()?;

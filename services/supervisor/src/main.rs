@@ -8,306 +8,17 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::{Context, Result};
-use clap::{Parser, Subcommand};
+use clap::Parser;
 use pipeline::config::{ClockMode, PipelineConfig};
 use pipeline::runtime::init_logging;
 use supervisor::run::{execute, RunSummary};
 use supervisor::run_dir;
 
-#[derive(Debug, Parser)]
-#[command(
-    name = "dynslam",
-    version,
-    about = "Dynamic-scene visual SLAM as a zero-copy multi-process pipeline"
-)]
-struct Cli {
-    #[command(subcommand)]
-    command: Command,
-}
-
-#[derive(Debug, Subcommand)]
-enum Command {
-    /// Run the whole pipeline on a dataset and write a run folder.
-    ///
-    /// Exit codes: 0 done, 1 failed (bad input, a service that could not
-    /// run), 2 bad command line, 3 degraded (a mask worker was given up on;
-    /// status.json and report.md say why), 130 interrupted.
-    Run {
-        /// TUM RGB-D folder (rgb.txt, depth.txt); default: `source.path` of
-        /// the config, and when that is empty too the embedded default scene
-        /// (a rendered room with people walking through it, rendered once
-        /// into OUTPUT_DIR/default-scene-v2).
-        dataset: Option<PathBuf>,
-        /// Pipeline configuration, layered over the built-in defaults (the
-        /// shipped configs/pipeline.toml); default: the built-in defaults.
-        #[arg(long)]
-        config: Option<PathBuf>,
-        /// Camera: a preset (tum-fr1, tum-fr2, tum-fr3, bonn,
-        /// global-shutter-example), a camera file (the keys of [camera]), or
-        /// `config` for the config's [camera]. Default: the preset the
-        /// dataset folder's name implies (rgbd_dataset_freiburg2_* -> tum-fr2,
-        /// rgbd_bonn_* -> bonn), else the config's [camera].
-        #[arg(long)]
-        camera: Option<String>,
-        /// Fail (exit 1) instead of finishing degraded (exit 3) when a mask
-        /// worker is given up on (`run.require_masks`).
-        #[arg(long)]
-        require_masks: bool,
-        /// Start in this saved map: poses come out in its world frame (the
-        /// first frames relocalise against its keyframes).
-        #[arg(long)]
-        load_map: Option<PathBuf>,
-        /// Write the SLAM map to this file at the end of the run.
-        #[arg(long)]
-        save_map: Option<PathBuf>,
-        /// ORB-SLAM2's localization mode: track in the loaded map, add no
-        /// keyframe or point (needs --load-map).
-        #[arg(long)]
-        localize_only: bool,
-        /// Where the run folder is created (default: `run.output_dir`).
-        #[arg(long)]
-        output_dir: Option<PathBuf>,
-        /// Clock mode (default: `run.mode`).
-        #[arg(long, value_enum)]
-        mode: Option<Mode>,
-        /// Route every frame unmasked (ablation).
-        #[arg(long)]
-        no_masks: bool,
-        /// The SLAM's sensor (default: `services.slam.sensor`): `rgbd` or
-        /// `monocular` (colour only; depth ignored).
-        #[arg(long, value_enum)]
-        sensor: Option<SensorArg>,
-        /// Play at most this many frames.
-        #[arg(long)]
-        limit: Option<u64>,
-        /// Run id (letters, digits, '-'); default: a fresh random one.
-        #[arg(long)]
-        run_id: Option<String>,
-        /// Publish the run as ROS 2 topics over rmw_zenoh (`[bridge]
-        /// enabled = true`; README "ROS 2").
-        #[arg(long)]
-        ros2: bool,
-    },
-    /// Continue a run whose supervisor was stopped or killed.
-    Resume {
-        /// The run folder to continue.
-        run_dir: PathBuf,
-    },
-    /// Ablation on a dynamic sequence: the whole pipeline without masks,
-    /// with ground-truth masks, segmenter on every frame, the product's
-    /// routing, and blackout; one table of ATE, tracked %, mask IoU, ms/frame.
-    Ablate {
-        /// A folder written by `dynslam synth` (ground-truth masks needed
-        /// for row b and the IoU column).
-        dataset: PathBuf,
-        /// Pipeline configuration (default: the built-in defaults).
-        #[arg(long)]
-        config: Option<PathBuf>,
-        /// Where the run folders and ablation.md go (default: `run.output_dir`).
-        #[arg(long)]
-        output_dir: Option<PathBuf>,
-        /// Play at most this many frames per run.
-        #[arg(long)]
-        limit: Option<u64>,
-        /// Run only these rows (static, a, b, c, d, e); default all.
-        #[arg(long, value_delimiter = ',')]
-        only: Vec<String>,
-    },
-    /// Write a run folder's report again (report.md and plots/), e.g. after
-    /// the dataset's ground truth was added.
-    Report {
-        /// The run folder.
-        run_dir: PathBuf,
-    },
-    /// Trajectory accuracy: ATE and RPE of an estimate against ground truth
-    /// (TUM format), as evo computes them.
-    Eval {
-        /// Ground-truth trajectory (TUM: timestamp tx ty tz qx qy qz qw).
-        #[arg(long)]
-        gt: PathBuf,
-        /// Estimated trajectory (TUM format).
-        #[arg(long)]
-        est: PathBuf,
-        /// Alignment before ATE: se3 (RGB-D), sim3 (monocular) or none.
-        #[arg(long, value_enum, default_value = "se3")]
-        align: Align,
-        /// Association tolerance in seconds.
-        #[arg(long, default_value_t = 0.02)]
-        max_diff: f64,
-        /// Print the summary as JSON on stdout.
-        #[arg(long)]
-        json: bool,
-        /// Also write the summary to this JSON file.
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// Also draw the aligned estimate (coloured by error) against the
-        /// ground truth (grey) in its two main views, to this PNG.
-        #[arg(long)]
-        plot: Option<PathBuf>,
-    },
-    /// Render the synthetic room as a TUM RGB-D folder (rgb/, depth/,
-    /// groundtruth.txt; TUM fr1 camera): `--path circuit` goes once round the
-    /// room looking out at the walls and back to its first pose, a loop for
-    /// loop closing; `--path orbit` goes round looking in across the room.
-    Render {
-        /// New folder to write (must not exist or be empty).
-        output: PathBuf,
-        /// The camera's path: `glide` (the default scene's), `circuit` or `orbit`.
-        #[arg(long, value_enum, default_value_t = CameraPathArg::Glide)]
-        path: CameraPathArg,
-        /// Frames at 30 fps (the circuit takes them all to close).
-        #[arg(long, default_value_t = 150)]
-        frames: usize,
-    },
-    /// Make a dynamic sequence: people (and boxes) walking through a TUM
-    /// RGB-D sequence, with ground-truth masks (masks/, movers/, objects.json).
-    Synth {
-        /// TUM RGB-D folder with groundtruth.txt.
-        input: PathBuf,
-        /// New folder to write (must not exist or be empty).
-        output: PathBuf,
-        /// Number of people.
-        #[arg(long, default_value_t = 2)]
-        objects: usize,
-        /// Carried boxes besides the people (0.4 m, textured): movers no
-        /// class list names, in movers/ and movers.txt, not in masks/ (the
-        /// SLAM's motion check should find them).
-        #[arg(long, default_value_t = 0)]
-        boxes: usize,
-        /// Walking speed (m/s; each person varies it by +-20 %).
-        #[arg(long, default_value_t = 1.0)]
-        speed: f64,
-        /// Nearest walking distance from the first camera (m); smaller
-        /// covers more of the frame.
-        #[arg(long, default_value_t = 0.7)]
-        near: f64,
-        /// Farthest walking distance (m).
-        #[arg(long, default_value_t = 1.4)]
-        far: f64,
-        /// Height of a person cut-out in the world (m; the cut-outs show
-        /// head to waist).
-        #[arg(long, default_value_t = 0.75)]
-        height: f64,
-        /// Random seed: the same seed gives the same scene.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        /// What hides people: `scene` (nearer scene depth; walks that cross
-        /// furniture show only what sticks out) or `none` (people pass
-        /// between the camera and the scene, drawn whole).
-        #[arg(long, value_enum, default_value_t = OcclusionArg::Scene)]
-        occlusion: OcclusionArg,
-        /// How people walk: `across` (back and forth across the view,
-        /// entering and leaving at its sides) or `mixed` (in turn: across,
-        /// toward and away from the camera, across with stops).
-        #[arg(long, value_enum, default_value_t = BehavioursArg::Across)]
-        behaviour: BehavioursArg,
-        /// Synthesise only the first N frames.
-        #[arg(long)]
-        limit: Option<usize>,
-        /// Camera intrinsics and depth scale are read from this config
-        /// (default: the built-in defaults).
-        #[arg(long)]
-        config: Option<PathBuf>,
-    },
-    /// Mask quality against ground truth on a `dynslam synth` sequence:
-    /// segmenter IoU on keyframes, propagator IoU on the frames between.
-    MasksEval {
-        /// A folder written by `dynslam synth`.
-        dataset: PathBuf,
-        /// Segment every Nth frame, propagate the N-1 between.
-        #[arg(long, default_value_t = 11)]
-        keyframe_every: usize,
-        /// Score a person only where it covers at least this many pixels.
-        #[arg(long, default_value_t = 2000)]
-        min_px: usize,
-        /// Evaluate only the first N frames.
-        #[arg(long)]
-        limit: Option<usize>,
-        /// Print the scores as JSON on stdout.
-        #[arg(long)]
-        json: bool,
-        /// Write each frame's predicted labels (NNNN.png) and scores.csv here.
-        #[arg(long)]
-        save: Option<PathBuf>,
-        /// Pipeline configuration (default: the built-in defaults).
-        #[arg(long)]
-        config: Option<PathBuf>,
-    },
-    /// The V4L2 cameras of this machine (`/dev/video*`): name, formats, and
-    /// which `source.v4l2` key takes each (README "Live camera").
-    Cameras,
-    /// The bag-of-words vocabulary of place recognition (relocalisation):
-    /// train one, or describe a file.
-    Vocab {
-        #[command(subcommand)]
-        action: VocabAction,
-    },
-}
-
-#[derive(Debug, Subcommand)]
-enum VocabAction {
-    /// Train a vocabulary (hierarchical k-means over the SLAM's ORB
-    /// features) on PNG images; deterministic for a seed. The shipped one:
-    /// `dynslam vocab train --out assets/vocabulary/orb-k10-l4.vocab
-    /// ../shared/data/tum/rgbd_dataset_freiburg1_rpy_first300/rgb`.
-    Train {
-        /// The vocabulary file to write.
-        #[arg(long)]
-        out: PathBuf,
-        /// Children per tree node (k).
-        #[arg(long, default_value_t = 10)]
-        branching: usize,
-        /// Tree depth (L): up to k^L words.
-        #[arg(long, default_value_t = 4)]
-        levels: usize,
-        /// Seed of k-means++ (same seed and images: same file).
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        /// PNG files, or folders whose *.png files are all used (name order).
-        #[arg(required = true)]
-        images: Vec<PathBuf>,
-    },
-    /// Words, tree shape, SHA-256, load time and training summary of a vocabulary file.
-    Info { file: PathBuf },
-}
-
-#[derive(Debug, Clone, Copy, clap::ValueEnum)]
-enum SensorArg {
-    Rgbd,
-    Monocular,
-}
-
-#[derive(Debug, Clone, Copy, clap::ValueEnum)]
-enum CameraPathArg {
-    Glide,
-    Circuit,
-    Orbit,
-}
-
-#[derive(Debug, Clone, Copy, clap::ValueEnum)]
-enum BehavioursArg {
-    Across,
-    Mixed,
-}
-
-#[derive(Debug, Clone, Copy, clap::ValueEnum)]
-enum OcclusionArg {
-    Scene,
-    None,
-}
-
-#[derive(Debug, Clone, Copy, clap::ValueEnum)]
-enum Align {
-    None,
-    Se3,
-    Sim3,
-}
-
-#[derive(Debug, Clone, Copy, clap::ValueEnum)]
-enum Mode {
-    Lockstep,
-    Realtime,
-}
+mod cli;
+use cli::{
+    Align, BehavioursArg, CameraPathArg, Cli, Command, Mode, OcclusionArg, RunArgs, SensorArg,
+    VocabAction,
+};
 
 fn main() -> ExitCode {
     init_logging();
@@ -322,146 +33,7 @@ fn main() -> ExitCode {
 
 fn dispatch(command: Command) -> Result<ExitCode> {
     match command {
-        Command::Run {
-            dataset,
-            config,
-            camera,
-            require_masks,
-            load_map,
-            save_map,
-            localize_only,
-            output_dir,
-            mode,
-            no_masks,
-            sensor,
-            limit,
-            run_id,
-            ros2,
-        } => {
-            let mut cfg = load_config(config.as_deref())?;
-            cfg.bridge.enabled |= ros2;
-            if let Some(s) = sensor {
-                cfg.services.slam.sensor = match s {
-                    SensorArg::Rgbd => "rgbd",
-                    SensorArg::Monocular => "monocular",
-                }
-                .into();
-                cfg.validate()
-                    .map_err(|e| anyhow::anyhow!("--sensor with the configuration: {e}"))?;
-            }
-            let slam = &mut cfg.services.slam;
-            slam.load_map = load_map.or(slam.load_map.take());
-            slam.save_map = save_map.or(slam.save_map.take());
-            slam.localize_only |= localize_only;
-            if let Some(d) = dataset {
-                cfg.source.path = d;
-            }
-            if require_masks {
-                cfg.run.require_masks = true;
-            }
-            let out = output_dir.unwrap_or_else(|| cfg.run.output_dir.clone());
-            // Live sources: frames from a camera or an outside publisher.
-            let live = match cfg.source.kind {
-                pipeline::config::SourceKind::External => Some("external"),
-                pipeline::config::SourceKind::V4l2 => Some("v4l2"),
-                pipeline::config::SourceKind::Ros2 => Some("ros2"),
-                _ => None,
-            };
-            if let (Some(kind), false) = (live, cfg.source.path.as_os_str().is_empty()) {
-                anyhow::bail!(
-                    "dataset folder {} given with source.kind = \"{kind}\" (frames come live): drop one of them",
-                    cfg.source.path.display()
-                );
-            }
-            if cfg.source.kind == pipeline::config::SourceKind::V4l2 {
-                camera_reader::v4l2::probe(&cfg.source)?;
-            }
-            if live.is_none() && cfg.source.path.as_os_str().is_empty() {
-                // No dataset: the embedded default scene (rendered once).
-                cfg.source.kind = pipeline::config::SourceKind::Tum;
-                cfg.source.path = supervisor::default_scene::ensure(&out, &cfg)?;
-            }
-            if live.is_none() {
-                if !cfg.source.path.is_dir() {
-                    anyhow::bail!(
-                        "dataset folder {} does not exist or is not a folder",
-                        cfg.source.path.display()
-                    );
-                }
-                cfg.source.path = cfg
-                    .source
-                    .path
-                    .canonicalize()
-                    .with_context(|| format!("cannot resolve {}", cfg.source.path.display()))?;
-            }
-            if let Some(m) = mode {
-                cfg.run.mode = match m {
-                    Mode::Lockstep => ClockMode::Lockstep,
-                    Mode::Realtime => ClockMode::Realtime,
-                };
-                cfg.validate()
-                    .map_err(|e| anyhow::anyhow!("--mode with the configuration: {e}"))?;
-            }
-            if no_masks {
-                cfg.routing.no_masks = true;
-            }
-            if let Some(l) = limit {
-                cfg.source.limit = l;
-            }
-            if matches!(
-                cfg.services.segmenter.backend.as_str(),
-                "yolov8-seg" | "maskrcnn"
-            ) {
-                // Caught here, before any process starts, not as a degraded run.
-                segmenter::coco::dynamic_classes(&cfg.services.segmenter.classes, "segmenter")
-                    .map_err(anyhow::Error::msg)?;
-            }
-            if cfg.source.kind == pipeline::config::SourceKind::Ros2 && camera.is_none() {
-                // A ROS 2 camera says its intrinsics on its CameraInfo topic.
-                cfg.camera = supervisor::ros2_camera::camera_info(&cfg)?;
-            }
-            let choice =
-                pipeline::cameras::choose(camera.as_deref(), &cfg.source.path, &cfg.camera)
-                    .map_err(anyhow::Error::msg)?;
-            if choice.name != pipeline::cameras::FROM_CONFIG && choice.camera != cfg.camera {
-                tracing::warn!(
-                    "camera {} ({}) differs from the config's [camera] and replaces it; --camera config keeps the config's",
-                    choice.name,
-                    choice.reason
-                );
-            } else {
-                tracing::info!("camera {}: {}", choice.name, choice.reason);
-            }
-            // Presets and camera files are validated as they are read.
-            cfg.camera = choice.camera.clone();
-            supervisor::map_files::prepare(&mut cfg)?;
-            let id = match run_id {
-                Some(id) => id,
-                None => run_dir::new_run_id(),
-            };
-            shared_types::names::RunNames::new(&id).map_err(anyhow::Error::msg)?;
-            tracing::info!(
-                "backends: slam {}, segmenter {}, propagator {}{}",
-                cfg.services.slam.backend,
-                cfg.services.segmenter.backend,
-                cfg.services.propagator.backend,
-                if cfg.routing.no_masks {
-                    " (routing.no_masks: no frame is masked)"
-                } else {
-                    ""
-                }
-            );
-            // Refused before anything is written when a live run holds the id.
-            drop(run_dir::RunLock::acquire(&id)?);
-            let dir = run_dir::create(
-                &out,
-                &id,
-                &cfg,
-                &format!("{}: {}", choice.name, choice.reason),
-            )?;
-            eprintln!("run {id}: {}", dir.display());
-            Ok(report_run(&execute(&dir)?))
-        }
+        Command::Run(args) => run(*args),
         Command::Resume { run_dir } => Ok(report_run(&execute(&run_dir)?)),
         Command::Ablate {
             dataset,
@@ -469,40 +41,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             output_dir,
             limit,
             only,
-        } => {
-            let mut cfg = load_config(config.as_deref())?;
-            if let Some(l) = limit {
-                cfg.source.limit = l;
-            }
-            // The rows the ablation has (the static one included), from its one list.
-            let known: Vec<&str> = supervisor::ablation::variants(Some(Default::default()))
-                .iter()
-                .map(|v| v.key)
-                .collect();
-            if let Some(bad) = only.iter().find(|o| !known.contains(&o.as_str())) {
-                anyhow::bail!("--only: unknown row '{bad}' (known: {})", known.join(", "));
-            }
-            let out = output_dir.unwrap_or_else(|| cfg.run.output_dir.clone());
-            let rows = supervisor::ablation::run(&dataset, &cfg, &out, &only)?;
-            let table = supervisor::ablation::table(&rows);
-            let md = out.join("ablation.md");
-            let text = format!(
-                "# dynslam ablate {}\n\n{table}\nRun folders: {}\n",
-                dataset.display(),
-                rows.iter()
-                    .map(|r| format!("`{}`", r.run_dir.display()))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            );
-            std::fs::write(&md, text).with_context(|| format!("cannot write {}", md.display()))?;
-            std::fs::write(
-                out.join("ablation.json"),
-                serde_json::to_string_pretty(&rows)?,
-            )?;
-            eprintln!("{table}");
-            println!("{}", md.display());
-            Ok(ExitCode::SUCCESS)
-        }
+        } => ablate(&dataset, config.as_deref(), output_dir, limit, &only),
         Command::Report { run_dir } => {
             let (_, cfg) = run_dir::open(&run_dir)?;
             let (_, rows) = supervisor::outputs::FrameLog::open(&run_dir)?;
@@ -536,28 +75,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             output,
             path,
             frames,
-        } => {
-            let options = scenes::room::RoomOptions {
-                frames,
-                path: match path {
-                    CameraPathArg::Glide => scenes::room::CameraPath::Glide,
-                    CameraPathArg::Circuit => scenes::room::CameraPath::Circuit,
-                    CameraPathArg::Orbit => scenes::room::CameraPath::Orbit,
-                },
-                ..Default::default()
-            };
-            let t = std::time::Instant::now();
-            scenes::room::render_room(&output, &slam_core::Camera::tum_fr1(), &options)
-                .map(|n| {
-                    eprintln!(
-                        "{n} frames rendered to {} in {:.1} s",
-                        output.display(),
-                        t.elapsed().as_secs_f64()
-                    );
-                    ExitCode::SUCCESS
-                })
-                .map_err(anyhow::Error::from)
-        }
+        } => render(&output, path, frames),
         Command::Synth {
             input,
             output,
@@ -592,52 +110,8 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             };
             synth(&input, &output, &options, limit, config.as_deref()).map(|()| ExitCode::SUCCESS)
         }
-        Command::Cameras => {
-            let cameras =
-                camera_reader::v4l2::list_cameras().context("cannot list /dev for V4L2 cameras")?;
-            if cameras.is_empty() {
-                println!("no V4L2 capture device under /dev (is a camera plugged in? is /dev/video* visible here, e.g. inside a container?)");
-            }
-            for c in cameras {
-                println!(
-                    "{}  {}  formats {}  -> {}",
-                    c.path.display(),
-                    c.card,
-                    if c.formats.is_empty() {
-                        "none".to_string()
-                    } else {
-                        c.formats.join(" ")
-                    },
-                    c.use_as
-                );
-            }
-            Ok(ExitCode::SUCCESS)
-        }
-        Command::Vocab { action } => {
-            match action {
-                VocabAction::Train {
-                    out,
-                    branching,
-                    levels,
-                    seed,
-                    images,
-                } => {
-                    let opts = slam_core::place_recognition::vocabulary::TrainOptions {
-                        branching,
-                        levels,
-                        seed,
-                    };
-                    let t = supervisor::vocab::train(&images, &out, opts)?;
-                    eprintln!(
-                        "vocab: {} words from {} features of {} images in {:.1} s",
-                        t.words, t.features, t.images, t.seconds
-                    );
-                    println!("{}  {}", t.sha256, out.display());
-                }
-                VocabAction::Info { file } => println!("{}", supervisor::vocab::info(&file)?),
-            }
-            Ok(ExitCode::SUCCESS)
-        }
+        Command::Cameras => cameras(),
+        Command::Vocab { action } => vocab(action),
         Command::MasksEval {
             dataset,
             keyframe_every,
@@ -657,6 +131,289 @@ fn dispatch(command: Command) -> Result<ExitCode> {
         )
         .map(|()| ExitCode::SUCCESS),
     }
+}
+
+/// `dynslam run`'s configuration: the file, the flags over it, the dataset
+/// checked, the camera chosen (still without the map files prepared).
+fn run_config(
+    args: RunArgs,
+) -> Result<(
+    PipelineConfig,
+    PathBuf,
+    pipeline::cameras::CameraChoice,
+    Option<String>,
+)> {
+    let RunArgs {
+        dataset,
+        config,
+        camera,
+        require_masks,
+        load_map,
+        save_map,
+        localize_only,
+        output_dir,
+        mode,
+        no_masks,
+        sensor,
+        limit,
+        run_id,
+        ros2,
+    } = args;
+    let mut cfg = load_config(config.as_deref())?;
+    cfg.bridge.enabled |= ros2;
+    if let Some(s) = sensor {
+        cfg.services.slam.sensor = match s {
+            SensorArg::Rgbd => "rgbd",
+            SensorArg::Monocular => "monocular",
+        }
+        .into();
+        cfg.validate()
+            .map_err(|e| anyhow::anyhow!("--sensor with the configuration: {e}"))?;
+    }
+    let slam = &mut cfg.services.slam;
+    slam.load_map = load_map.or(slam.load_map.take());
+    slam.save_map = save_map.or(slam.save_map.take());
+    slam.localize_only |= localize_only;
+    if let Some(d) = dataset {
+        cfg.source.path = d;
+    }
+    if require_masks {
+        cfg.run.require_masks = true;
+    }
+    let out = output_dir.unwrap_or_else(|| cfg.run.output_dir.clone());
+    resolve_source(&mut cfg, &out)?;
+    if let Some(m) = mode {
+        cfg.run.mode = match m {
+            Mode::Lockstep => ClockMode::Lockstep,
+            Mode::Realtime => ClockMode::Realtime,
+        };
+        cfg.validate()
+            .map_err(|e| anyhow::anyhow!("--mode with the configuration: {e}"))?;
+    }
+    if no_masks {
+        cfg.routing.no_masks = true;
+    }
+    if let Some(l) = limit {
+        cfg.source.limit = l;
+    }
+    if matches!(
+        cfg.services.segmenter.backend.as_str(),
+        "yolov8-seg" | "maskrcnn"
+    ) {
+        // Caught here, before any process starts, not as a degraded run.
+        segmenter::coco::dynamic_classes(&cfg.services.segmenter.classes, "segmenter")
+            .map_err(anyhow::Error::msg)?;
+    }
+    if cfg.source.kind == pipeline::config::SourceKind::Ros2 && camera.is_none() {
+        // A ROS 2 camera says its intrinsics on its CameraInfo topic.
+        cfg.camera = supervisor::ros2_camera::camera_info(&cfg)?;
+    }
+    let choice = pipeline::cameras::choose(camera.as_deref(), &cfg.source.path, &cfg.camera)
+        .map_err(anyhow::Error::msg)?;
+    if choice.name != pipeline::cameras::FROM_CONFIG && choice.camera != cfg.camera {
+        tracing::warn!(
+            "camera {} ({}) differs from the config's [camera] and replaces it; --camera config keeps the config's",
+            choice.name,
+            choice.reason
+        );
+    } else {
+        tracing::info!("camera {}: {}", choice.name, choice.reason);
+    }
+    // Presets and camera files are validated as they are read.
+    cfg.camera = choice.camera.clone();
+    Ok((cfg, out, choice, run_id))
+}
+
+/// The run's source: a live one (no dataset folder allowed with it; a V4L2
+/// camera probed), or a dataset folder that exists (the embedded default
+/// scene, rendered once into `out`, when none is given).
+fn resolve_source(cfg: &mut PipelineConfig, out: &std::path::Path) -> Result<()> {
+    // Live sources: frames from a camera or an outside publisher.
+    let live = match cfg.source.kind {
+        pipeline::config::SourceKind::External => Some("external"),
+        pipeline::config::SourceKind::V4l2 => Some("v4l2"),
+        pipeline::config::SourceKind::Ros2 => Some("ros2"),
+        _ => None,
+    };
+    if let (Some(kind), false) = (live, cfg.source.path.as_os_str().is_empty()) {
+        anyhow::bail!(
+            "dataset folder {} given with source.kind = \"{kind}\" (frames come live): drop one of them",
+            cfg.source.path.display()
+        );
+    }
+    if cfg.source.kind == pipeline::config::SourceKind::V4l2 {
+        camera_reader::v4l2::probe(&cfg.source)?;
+    }
+    if live.is_none() && cfg.source.path.as_os_str().is_empty() {
+        // No dataset: the embedded default scene (rendered once).
+        cfg.source.kind = pipeline::config::SourceKind::Tum;
+        cfg.source.path = supervisor::default_scene::ensure(out, cfg)?;
+    }
+    if live.is_none() {
+        if !cfg.source.path.is_dir() {
+            anyhow::bail!(
+                "dataset folder {} does not exist or is not a folder",
+                cfg.source.path.display()
+            );
+        }
+        cfg.source.path = cfg
+            .source
+            .path
+            .canonicalize()
+            .with_context(|| format!("cannot resolve {}", cfg.source.path.display()))?;
+    }
+    Ok(())
+}
+
+/// `dynslam run`: the configuration resolved from the file and the flags
+/// ([`run_config`]), the run folder made, the run executed.
+fn run(args: RunArgs) -> Result<ExitCode> {
+    let (mut cfg, out, choice, run_id) = run_config(args)?;
+    supervisor::map_files::prepare(&mut cfg)?;
+    let id = match run_id {
+        Some(id) => id,
+        None => run_dir::new_run_id(),
+    };
+    shared_types::names::RunNames::new(&id).map_err(anyhow::Error::msg)?;
+    tracing::info!(
+        "backends: slam {}, segmenter {}, propagator {}{}",
+        cfg.services.slam.backend,
+        cfg.services.segmenter.backend,
+        cfg.services.propagator.backend,
+        if cfg.routing.no_masks {
+            " (routing.no_masks: no frame is masked)"
+        } else {
+            ""
+        }
+    );
+    // Refused before anything is written when a live run holds the id.
+    drop(run_dir::RunLock::acquire(&id)?);
+    let dir = run_dir::create(
+        &out,
+        &id,
+        &cfg,
+        &format!("{}: {}", choice.name, choice.reason),
+    )?;
+    eprintln!("run {id}: {}", dir.display());
+    Ok(report_run(&execute(&dir)?))
+}
+
+/// `dynslam ablate`: the ablation's rows on `dataset` (`only`: some of
+/// them), its table as markdown and JSON beside the run folders.
+fn ablate(
+    dataset: &std::path::Path,
+    config: Option<&std::path::Path>,
+    output_dir: Option<PathBuf>,
+    limit: Option<u64>,
+    only: &[String],
+) -> Result<ExitCode> {
+    let mut cfg = load_config(config)?;
+    if let Some(l) = limit {
+        cfg.source.limit = l;
+    }
+    // The rows the ablation has (the static one included), from its one list.
+    let known: Vec<&str> = supervisor::ablation::variants(Some(Default::default()))
+        .iter()
+        .map(|v| v.key)
+        .collect();
+    if let Some(bad) = only.iter().find(|o| !known.contains(&o.as_str())) {
+        anyhow::bail!("--only: unknown row '{bad}' (known: {})", known.join(", "));
+    }
+    let out = output_dir.unwrap_or_else(|| cfg.run.output_dir.clone());
+    let rows = supervisor::ablation::run(dataset, &cfg, &out, only)?;
+    let table = supervisor::ablation::table(&rows);
+    let md = out.join("ablation.md");
+    let text = format!(
+        "# dynslam ablate {}\n\n{table}\nRun folders: {}\n",
+        dataset.display(),
+        rows.iter()
+            .map(|r| format!("`{}`", r.run_dir.display()))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    std::fs::write(&md, text).with_context(|| format!("cannot write {}", md.display()))?;
+    std::fs::write(
+        out.join("ablation.json"),
+        serde_json::to_string_pretty(&rows)?,
+    )?;
+    eprintln!("{table}");
+    println!("{}", md.display());
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `dynslam cameras`: the V4L2 capture devices and how each would be used.
+fn cameras() -> Result<ExitCode> {
+    let cameras =
+        camera_reader::v4l2::list_cameras().context("cannot list /dev for V4L2 cameras")?;
+    if cameras.is_empty() {
+        println!("no V4L2 capture device under /dev (is a camera plugged in? is /dev/video* visible here, e.g. inside a container?)");
+    }
+    for c in cameras {
+        println!(
+            "{}  {}  formats {}  -> {}",
+            c.path.display(),
+            c.card,
+            if c.formats.is_empty() {
+                "none".to_string()
+            } else {
+                c.formats.join(" ")
+            },
+            c.use_as
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `dynslam vocab`: train a vocabulary, or describe one.
+fn vocab(action: VocabAction) -> Result<ExitCode> {
+    match action {
+        VocabAction::Train {
+            out,
+            branching,
+            levels,
+            seed,
+            images,
+        } => {
+            let opts = slam_core::place_recognition::vocabulary::TrainOptions {
+                branching,
+                levels,
+                seed,
+            };
+            let t = supervisor::vocab::train(&images, &out, opts)?;
+            eprintln!(
+                "vocab: {} words from {} features of {} images in {:.1} s",
+                t.words, t.features, t.images, t.seconds
+            );
+            println!("{}  {}", t.sha256, out.display());
+        }
+        VocabAction::Info { file } => println!("{}", supervisor::vocab::info(&file)?),
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `dynslam render`: the rendered room (`frames` frames along `path`) as
+/// a TUM RGB-D folder in `output`.
+fn render(output: &std::path::Path, path: CameraPathArg, frames: usize) -> Result<ExitCode> {
+    let options = scenes::room::RoomOptions {
+        frames,
+        path: match path {
+            CameraPathArg::Glide => scenes::room::CameraPath::Glide,
+            CameraPathArg::Circuit => scenes::room::CameraPath::Circuit,
+            CameraPathArg::Orbit => scenes::room::CameraPath::Orbit,
+        },
+        ..Default::default()
+    };
+    let t = std::time::Instant::now();
+    scenes::room::render_room(output, &slam_core::Camera::tum_fr1(), &options)
+        .map(|n| {
+            eprintln!(
+                "{n} frames rendered to {} in {:.1} s",
+                output.display(),
+                t.elapsed().as_secs_f64()
+            );
+            ExitCode::SUCCESS
+        })
+        .map_err(anyhow::Error::from)
 }
 
 /// Exit code of a run that finished degraded (a mask worker given up on).

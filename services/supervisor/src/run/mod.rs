@@ -1,9 +1,7 @@
 //! The supervisor's run loop: start the services, route every frame, record
 //! every Track, restart what dies, stop everything in order, write outputs.
 
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::Child;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -21,17 +19,16 @@ use shared_types::{
     MasksHeader, Route, RouteKind, ServiceKind, Track, TrackState,
 };
 
-use crate::children::{
-    describe_exit, is_input_error, process_matches, renice, service_program, signal, spawn,
-    RestartDecision, RestartPolicy,
-};
+mod processes;
+use processes::{clean_previous, Service, SvcState};
+
+use crate::children::{service_program, RestartPolicy};
 use crate::external::ExternalStream;
 use crate::latency;
 use crate::mask_record::MaskRecorder;
 use crate::outputs::{write_tum, FrameLog, FrameRow};
-use crate::run_dir::{self, ChildStatus, Status};
+use crate::run_dir;
 use scheduling::ledger::{Arrival, Dropped, Input, Ledger};
-use scheduling::routing::Availability;
 
 /// The SLAM service writes its map here (in the run folder) when stopped.
 pub const MAP_FILE: &str = "map.ply";
@@ -59,135 +56,12 @@ pub struct RunSummary {
     pub latency_table: String,
 }
 
-#[derive(Debug, Clone, PartialEq)]
-enum SvcState {
-    NotStarted,
-    Starting {
-        since: Instant,
-    },
-    Ready,
-    Backoff {
-        until: Instant,
-    },
-    Failed {
-        reason: String,
-    },
-    Stopped,
-    /// `source.kind = "external"`: an outside program publishes the frames.
-    External,
-}
-
-struct Service {
-    kind: ServiceKind,
-    program: Vec<String>,
-    child: Option<Child>,
-    state: SvcState,
-    policy: RestartPolicy,
-    started: Instant,
-    restarts: u64,
-    /// Last error line the service printed (shown when it is given up on).
-    last_error: Arc<Mutex<String>>,
-    /// The thread forwarding the running process's stderr.
-    stderr_forwarder: Option<std::thread::JoinHandle<()>>,
-}
-
-impl Service {
-    fn pid(&self) -> Option<u32> {
-        self.child.as_ref().map(|c| c.id())
-    }
-    fn state_name(&self) -> &'static str {
-        match self.state {
-            SvcState::NotStarted => "not_started",
-            SvcState::Starting { .. } => "starting",
-            SvcState::Ready => "ready",
-            SvcState::Backoff { .. } => "backoff",
-            SvcState::Failed { .. } => "failed",
-            SvcState::Stopped => "stopped",
-            SvcState::External => "external",
-        }
-    }
-    fn failed(&self) -> bool {
-        matches!(self.state, SvcState::Failed { .. })
-    }
-}
-
 /// What the supervisor keeps with a pending frame (its ledger holds the
 /// rest): copied into the frame's Route and `frames.csv` row.
 #[derive(Debug, Clone, Copy)]
 struct FrameExtra {
     timestamp: f64,
     stamps: shared_types::StageStamps,
-}
-
-/// Kills what a previous supervisor of this run left behind and removes the
-/// run's stale shared memory, so that a resumed run starts clean.
-fn clean_previous(run_dir: &Path, names: &RunNames) -> Result<()> {
-    if let Some(status) = run_dir::read_status(run_dir) {
-        if status.supervisor_pid != std::process::id()
-            && process_matches(status.supervisor_pid, run_dir.to_string_lossy().as_ref())
-            && status.state == "running"
-        {
-            bail!(
-                "run {} is still supervised by pid {}; stop it first",
-                run_dir.display(),
-                status.supervisor_pid
-            );
-        }
-        let deadline = Instant::now() + Duration::from_secs(3);
-        for c in status.children.iter().filter_map(|c| c.pid) {
-            while process_matches(c, names.run_id()) {
-                signal(c, libc::SIGKILL);
-                if Instant::now() > deadline {
-                    bail!("process {c} of run {} does not die", names.run_id());
-                }
-                std::thread::sleep(Duration::from_millis(10));
-            }
-        }
-    }
-    let report = cleanup_dead_nodes(names)?;
-    let removed = remove_run_files(names)?;
-    if report.dead_nodes_removed > 0 || removed > 0 {
-        tracing::info!(
-            dead_nodes = report.dead_nodes_removed,
-            files = removed,
-            "removed stale resources of a previous supervisor"
-        );
-    }
-    Ok(())
-}
-
-/// Forwards a child's stderr to ours and remembers its last error line;
-/// the thread ends when the child's stderr closes.
-fn forward_stderr(
-    child: &mut Child,
-    last_error: Arc<Mutex<String>>,
-) -> Option<std::thread::JoinHandle<()>> {
-    child.stderr.take().map(|stderr| {
-        std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                eprintln!("{line}");
-                if line.contains("ERROR") {
-                    if let Ok(mut l) = last_error.lock() {
-                        *l = line;
-                    }
-                }
-            }
-        })
-    })
-}
-
-/// The last error line of a service that has exited: its stderr forwarder
-/// is given up to half a second to read what the process wrote last (the
-/// exit can be seen before the pipe is drained; a grandchild holding the
-/// pipe open must not stall the supervisor).
-fn last_error_of(svc: &mut Service) -> String {
-    if let Some(forwarder) = svc.stderr_forwarder.take() {
-        let deadline = Instant::now() + Duration::from_millis(500);
-        while !forwarder.is_finished() && Instant::now() < deadline {
-            std::thread::sleep(Duration::from_millis(5));
-        }
-    }
-    svc.last_error.lock().map(|s| s.clone()).unwrap_or_default()
 }
 
 struct Supervisor {
@@ -211,99 +85,6 @@ struct Supervisor {
 }
 
 impl Supervisor {
-    fn svc(&mut self, kind: ServiceKind) -> &mut Service {
-        self.services
-            .iter_mut()
-            .find(|s| s.kind == kind)
-            .expect("every kind has a service")
-    }
-
-    fn start(&mut self, kind: ServiceKind) {
-        let run_dir = self.run_dir.clone();
-        let mut args = vec![
-            "--run-id".to_string(),
-            self.names.run_id().to_string(),
-            "--config".to_string(),
-            run_dir
-                .join(run_dir::CONFIG_FILE)
-                .to_string_lossy()
-                .into_owned(),
-        ];
-        if kind == ServiceKind::Bridge {
-            args.push("--run-dir".into());
-            args.push(run_dir.to_string_lossy().into_owned());
-        }
-        if kind == ServiceKind::CameraReader {
-            args.push("--start-seq".into());
-            args.push(self.ledger.next_seq().to_string());
-        }
-        if kind == ServiceKind::Slam {
-            args.push("--map-out".into());
-            args.push(run_dir.join(MAP_FILE).to_string_lossy().into_owned());
-            args.push("--loops-out".into());
-            args.push(run_dir.join(LOOPS_FILE).to_string_lossy().into_owned());
-            args.push("--corrected-trajectory-out".into());
-            let corrected = run_dir.join(CORRECTED_TRAJECTORY_FILE);
-            args.push(corrected.to_string_lossy().into_owned());
-            args.push("--checkpoint".into());
-            let checkpoint = run_dir.join(crate::map_files::CHECKPOINT_FILE);
-            args.push(checkpoint.to_string_lossy().into_owned());
-            if self.ledger.next_seq() > 0 {
-                // A restart (or a resume): does it go on in the map?
-                let from = if checkpoint.is_file() {
-                    let poses = run_dir.join(crate::map_files::RESUME_POSES_FILE);
-                    match write_tum(&poses, &self.recent_tracked.rows, |_| true) {
-                        Ok(_) => {
-                            args.push("--resume-poses".into());
-                            args.push(poses.to_string_lossy().into_owned());
-                        }
-                        Err(e) => tracing::warn!(
-                            "the restarted SLAM relocalises instead of resuming its motion: {e:#}"
-                        ),
-                    }
-                    "checkpoint"
-                } else {
-                    "empty"
-                };
-                if let Err(e) = run_dir::log_slam_start(&run_dir, self.ledger.next_seq(), from) {
-                    tracing::warn!("cannot record the SLAM start: {e:#}");
-                }
-            }
-        }
-        let nice = self
-            .config
-            .process(kind)
-            .nice
-            .filter(|_| self.slam_has_tracked());
-        let svc = self.svc(kind);
-        let program = svc.program.clone();
-        match spawn(&program, &args, nice) {
-            Ok(mut child) => {
-                svc.stderr_forwarder = forward_stderr(&mut child, svc.last_error.clone());
-                tracing::info!(pid = child.id(), "started {}", kind.as_str());
-                svc.child = Some(child);
-                svc.state = SvcState::Starting {
-                    since: Instant::now(),
-                };
-                svc.started = Instant::now();
-            }
-            Err(e) => {
-                svc.state = SvcState::Failed {
-                    reason: format!("{e:#}"),
-                };
-            }
-        }
-        self.status_dirty = true;
-    }
-
-    fn availability(&self) -> Availability {
-        let ok = |k: ServiceKind| !self.services.iter().any(|s| s.kind == k && s.failed());
-        Availability {
-            segmenter: ok(ServiceKind::Segmenter),
-            propagator: ok(ServiceKind::Propagator),
-        }
-    }
-
     /// Writes the row of a frame whose fate the ledger has settled.
     fn write_row(&mut self, row: FrameRow) -> Result<()> {
         self.log.append(&row)?;
@@ -327,29 +108,6 @@ impl Supervisor {
             note: d.why,
             ..Default::default()
         })
-    }
-
-    /// The SLAM has tracked a frame (in this run or, resumed, before it).
-    /// From then on services run at their configured niceness
-    /// (`services.*.nice`); until then at the supervisor's: the first
-    /// segmenter masks are what every stage waits for at the start, and a
-    /// niced segmenter on a busy machine took 0.5 s for them (at 60 fps with
-    /// two busy processes the first 32-40 frames went untracked).
-    fn slam_has_tracked(&self) -> bool {
-        !self.recent_tracked.rows.is_empty()
-    }
-
-    /// Every running service with a `nice` key gets it.
-    fn apply_niceness(&self) {
-        for svc in &self.services {
-            let (Some(nice), Some(child)) = (self.config.process(svc.kind).nice, &svc.child) else {
-                continue;
-            };
-            match renice(child.id(), nice) {
-                Ok(()) => tracing::info!("{} now runs at niceness {nice}", svc.kind.as_str()),
-                Err(e) => tracing::warn!("cannot set the niceness of {}: {e}", svc.kind.as_str()),
-            }
-        }
     }
 
     fn on_track(&mut self, t: Track) -> Result<()> {
@@ -479,245 +237,118 @@ impl Supervisor {
         }
         Ok(())
     }
+}
 
-    /// Reaps dead children and decides on restarts.
-    fn watch_children(&mut self, stopping: bool) -> Result<bool> {
-        let mut someone_died = false;
-        let now = Instant::now();
-        let timeout = Duration::from_secs(self.config.supervisor.ready_timeout_s);
-        for i in 0..self.services.len() {
-            let svc = &mut self.services[i];
-            let Some(child) = svc.child.as_mut() else {
-                continue;
-            };
-            let status = match child.try_wait()? {
-                Some(s) => s,
-                None => {
-                    if let SvcState::Starting { since } = svc.state {
-                        if now.duration_since(since) > timeout {
-                            tracing::error!(
-                                "{} not ready after {timeout:?}; killing it",
-                                svc.kind.as_str()
-                            );
-                            signal(child.id(), libc::SIGKILL);
-                        }
-                    }
-                    continue;
-                }
-            };
-            let pid = child.id();
-            svc.child = None;
-            someone_died = true;
-            self.status_dirty = true;
-            if stopping {
-                svc.state = SvcState::Stopped;
-                continue;
-            }
-            let how = describe_exit(status);
-            let kind = svc.kind;
-            if is_input_error(status) {
-                let msg = last_error_of(svc);
-                svc.state = SvcState::Failed {
-                    reason: format!("{} stopped on bad input ({how}): {msg}", kind.as_str()),
-                };
-                tracing::error!(
-                    "{} stopped on bad input ({how}); not restarting it",
-                    kind.as_str()
-                );
-                continue;
-            }
-            match svc.policy.on_death(now.duration_since(svc.started)) {
-                RestartDecision::RestartAfter(delay) => {
-                    tracing::warn!(
-                        pid,
-                        "{} died ({how}); restarting in {delay:?}",
-                        kind.as_str()
-                    );
-                    svc.state = SvcState::Backoff { until: now + delay };
-                    svc.restarts += 1;
-                    self.restarts += 1;
-                    run_dir::log_restart(
-                        &self.run_dir,
-                        &format!(
-                            "{} pid {pid} {how} next_seq {}",
-                            kind.as_str(),
-                            self.ledger.next_seq()
-                        ),
-                    )?;
-                }
-                RestartDecision::GiveUp { deaths_in_a_row } => {
-                    let msg = last_error_of(svc);
-                    let reason = format!(
-                        "{} died {deaths_in_a_row} times in a row, each within {} s of starting (last: {how}); giving up on it. Its last error: {msg}",
-                        kind.as_str(),
-                        self.config.supervisor.restart_backoff_reset_s
-                    );
-                    tracing::error!("{reason}");
-                    svc.state = SvcState::Failed { reason };
-                }
-            }
-        }
-        if someone_died {
-            // iceoryx2 dead-node detection: free the dead process's ports.
-            let report = cleanup_dead_nodes(&self.names)?;
-            if report.dead_nodes_removed > 0 {
-                tracing::debug!(
-                    nodes = report.dead_nodes_removed,
-                    "cleaned dead iceoryx2 nodes"
-                );
-            }
-        }
-        if !stopping {
-            let kinds: Vec<ServiceKind> = self.services.iter().map(|s| s.kind).collect();
-            for kind in kinds {
-                if let SvcState::Backoff { until } = self.svc(kind).state {
-                    if now >= until {
-                        self.start(kind);
-                    }
-                }
-            }
-        }
-        Ok(someone_died)
-    }
-
-    /// The mask workers given up on, in words (a degraded run).
-    fn degraded(&self) -> Vec<String> {
-        self.services
-            .iter()
-            .filter(|s| matches!(s.kind, ServiceKind::Segmenter | ServiceKind::Propagator))
-            .filter_map(|s| match &s.state {
-                SvcState::Failed { reason } => Some(format!(
-                    "{reason} (the frames after it were tracked without its masks)"
-                )),
-                _ => None,
-            })
-            .collect()
-    }
-
-    fn write_status(&mut self, state: &str, error: Option<String>) {
-        let status = Status {
-            run_id: self.names.run_id().to_string(),
-            supervisor_pid: std::process::id(),
-            restarts: self.restarts,
-            frames_done: self.ledger.recorded().len(),
-            frames_total: self.ledger.total(),
-            children: self
-                .services
-                .iter()
-                .map(|s| ChildStatus {
-                    service: s.kind.as_str().to_string(),
-                    pid: s.pid(),
-                    state: s.state_name().to_string(),
-                    restarts: s.restarts,
-                })
-                .collect(),
-            state: state.to_string(),
-            error,
+impl Supervisor {
+    /// A service announced it is up (`msg`); a restarted one in lockstep
+    /// gets the frame in flight replayed (it may have died with it).
+    fn on_ready(
+        &mut self,
+        msg: Lifecycle,
+        control: &pipeline::transport::Sender<Control, ()>,
+    ) -> Result<()> {
+        let Some(kind) = ServiceKind::from_u32(msg.service) else {
+            return Ok(());
         };
-        if let Err(e) = run_dir::write_status(&self.run_dir, &status) {
-            tracing::warn!("cannot write status: {e:#}");
+        let Some(svc) = self.services.iter_mut().find(|s| s.kind == kind) else {
+            return Ok(());
+        };
+        if svc.pid() != Some(msg.pid) {
+            return Ok(());
         }
-        self.status_dirty = false;
-    }
-
-    /// Stops the services in order: the source first, the SLAM last.
-    fn stop_all(&mut self) {
-        let grace = Duration::from_millis(self.config.supervisor.stop_timeout_ms);
-        // The bridge last: it publishes the SLAM's last poses.
-        for kind in [
-            ServiceKind::CameraReader,
-            ServiceKind::Segmenter,
-            ServiceKind::Propagator,
-            ServiceKind::Slam,
-            ServiceKind::Bridge,
-        ] {
-            let Some(svc) = self.services.iter_mut().find(|s| s.kind == kind) else {
-                continue; // no bridge in this run
-            };
-            let Some(mut child) = svc.child.take() else {
-                // A service given up on stays `failed` (the run's outcome says why).
-                if !svc.failed() {
-                    svc.state = SvcState::Stopped;
-                }
-                continue;
-            };
-            signal(child.id(), libc::SIGTERM);
-            let deadline = Instant::now() + grace;
-            loop {
-                match child.try_wait() {
-                    Ok(Some(_)) => break,
-                    Ok(None) if Instant::now() < deadline => {
-                        std::thread::sleep(Duration::from_millis(5))
-                    }
-                    _ => {
-                        tracing::warn!(
-                            "{} ignored SIGTERM for {grace:?}; killing it",
-                            kind.as_str()
-                        );
-                        let _ = child.kill();
-                        let _ = child.wait();
-                        break;
-                    }
-                }
-            }
-            svc.state = SvcState::Stopped;
-        }
+        let was_restart = svc.restarts > 0;
+        svc.state = SvcState::Ready;
         self.status_dirty = true;
+        tracing::info!("{} ready (pid {})", kind.as_str(), msg.pid);
+        if let Some(replay_seq) = self.ledger.replay_for(kind, was_restart, Instant::now()) {
+            control.send(Control { replay_seq })?;
+        }
+        Ok(())
     }
 
-    /// The watchdog: every service is up, frames are due, yet none has been
-    /// recorded for `supervisor.stall_timeout_s`. The oldest pending frame
-    /// says which stage holds it ([`Ledger::stall`]); that service is killed
-    /// (and restarted like a crash, so lockstep replays the frame), with the
-    /// stage in the log. A stall no service explains fails the run with the
-    /// same words.
-    fn check_stall(&mut self) {
-        let timeout = self.config.supervisor.stall_timeout_s;
-        // An external publisher may start whenever it likes.
-        let waiting_for_publisher = self.external.as_ref().is_some_and(|e| e.frames_seen() == 0);
-        let settled = !waiting_for_publisher
-            && self.services.iter().all(|s| {
-                matches!(
-                    s.state,
-                    SvcState::Ready | SvcState::Failed { .. } | SvcState::External
-                )
-            });
-        let now = Instant::now();
-        let Some(stall) = self
-            .ledger
-            .stall(Duration::from_secs(timeout), settled, now)
-        else {
+    /// The source starts once the services that consume it are up (or given
+    /// up on); an external publisher is told where to publish instead.
+    fn start_source_when_ready(&mut self) {
+        if self.svc(ServiceKind::CameraReader).state != SvcState::NotStarted {
             return;
-        };
-        let what = match stall.seq {
-            None if self.external.is_some() => format!(
-                "the external publisher sent no frame after {} (and no end of stream)",
-                self.ledger.next_seq()
-            ),
-            None => format!(
-                "no frame after {} reached the supervisor",
-                self.ledger.next_seq()
-            ),
-            Some(seq) => {
-                let route = stall.route.map_or("not routed", |r| r.as_str());
-                format!("frame {seq} (route {route}) is {}", stall.stage)
-            }
-        };
-        let why = format!("no frame recorded for {timeout} s (supervisor.stall_timeout_s): {what}");
-        match stall
-            .held_by
-            .and_then(|k| self.svc(k).pid().map(|pid| (k, pid)))
-        {
-            Some((k, pid)) => {
-                tracing::error!(
-                    "stalled: {why}; killing {} (pid {pid}) to restart it",
-                    k.as_str()
-                );
-                signal(pid, libc::SIGKILL);
-                self.ledger.note_progress(now);
-            }
-            None => self.fatal = Some(format!("the run stalled: {why}")),
         }
+        let up = |k| {
+            matches!(
+                self.services.iter().find(|s| s.kind == k).map(|s| &s.state),
+                Some(SvcState::Ready) | Some(SvcState::Failed { .. })
+            )
+        };
+        // The bridge, when there is one, sees the first poses too; one
+        // given up on (no router library, a bad Zenoh file) holds nothing.
+        let bridge_up = up(ServiceKind::Bridge) || !self.config.bridge.enabled;
+        let consumers_up = up(ServiceKind::Slam)
+            && up(ServiceKind::Segmenter)
+            && up(ServiceKind::Propagator)
+            && bridge_up;
+        if !consumers_up {
+            return;
+        }
+        if self.external.is_some() {
+            self.svc(ServiceKind::CameraReader).state = SvcState::External;
+            self.status_dirty = true;
+            tracing::info!(
+                "ready for frames from an external publisher: iceoryx2 service {}, file prefix {} (README \"Frames in\")",
+                self.names.service(Topic::Frames),
+                self.names.file_prefix()
+            );
+        } else {
+            self.start(ServiceKind::CameraReader);
+        }
+    }
+
+    /// Every set of masks published since the last wake-up: noted by the
+    /// ledger (and the router), recorded (and scored) by `recorder`.
+    fn drain_masks(
+        &mut self,
+        masks: &pipeline::transport::Receiver<[u8], MasksHeader>,
+        recorder: &mut MaskRecorder,
+    ) -> Result<()> {
+        masks.clear_wakeups();
+        while let Some(sample) = masks.next_sample()? {
+            let h = *sample.user_header();
+            if h.has(mask_flags::GONE) {
+                self.on_masks_gone(&h)?;
+                continue;
+            }
+            match MasksView::new(sample.user_header(), sample.payload()) {
+                Ok(view) => {
+                    let segment_wanted = view.header.has(mask_flags::SEGMENT_WANTED);
+                    self.ledger
+                        .on_masks(view.header.seq, view.source(), segment_wanted);
+                    recorder.record(&view)
+                }
+                Err(e) => tracing::warn!("not recording masks: {e:#}"),
+            }
+        }
+        Ok(())
+    }
+
+    /// Reaps dead services; services only fail when one dies, so what
+    /// follows from it (routes around a worker given up on, a required
+    /// worker's loss, a dead reader or SLAM) is decided then.
+    fn on_deaths(&mut self, routes: &pipeline::transport::Sender<Route, ()>) -> Result<()> {
+        if self.watch_children(false)? {
+            self.ledger.on_worker_lost();
+            self.reroute_orphans(routes)?;
+            if self.config.run.require_masks {
+                if let Some(reason) = self.degraded().first() {
+                    self.fatal = Some(format!(
+                        "{reason}; run.require_masks (--require-masks) makes this a failure"
+                    ));
+                }
+            }
+        }
+        for kind in [ServiceKind::CameraReader, ServiceKind::Slam] {
+            if let SvcState::Failed { reason } = &self.svc(kind).state {
+                self.fatal = Some(reason.clone());
+            }
+        }
+        Ok(())
     }
 }
 
@@ -968,74 +599,13 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
             break;
         }
         for msg in lifecycle.drain()? {
-            let Some(kind) = ServiceKind::from_u32(msg.service) else {
-                continue;
-            };
-            let Some(svc) = sup.services.iter_mut().find(|s| s.kind == kind) else {
-                continue;
-            };
-            if svc.pid() != Some(msg.pid) {
-                continue;
-            }
-            let was_restart = svc.restarts > 0;
-            svc.state = SvcState::Ready;
-            sup.status_dirty = true;
-            tracing::info!("{} ready (pid {})", kind.as_str(), msg.pid);
-            // Lockstep recovery: the in-flight frame may have been lost with
-            // the dead process; the reader publishes it again.
-            if let Some(replay_seq) = sup.ledger.replay_for(kind, was_restart, Instant::now()) {
-                control.send(Control { replay_seq })?;
-            }
+            sup.on_ready(msg, &control)?;
         }
-        // The source starts once the services that consume it are up.
-        if sup.svc(ServiceKind::CameraReader).state == SvcState::NotStarted {
-            let up = |k| {
-                matches!(
-                    sup.services.iter().find(|s| s.kind == k).map(|s| &s.state),
-                    Some(SvcState::Ready) | Some(SvcState::Failed { .. })
-                )
-            };
-            // The bridge, when there is one, sees the first poses too; one
-            // given up on (no router library, a bad Zenoh file) holds nothing.
-            let bridge_up = up(ServiceKind::Bridge) || !sup.config.bridge.enabled;
-            if up(ServiceKind::Slam)
-                && up(ServiceKind::Segmenter)
-                && up(ServiceKind::Propagator)
-                && bridge_up
-            {
-                if sup.external.is_some() {
-                    sup.svc(ServiceKind::CameraReader).state = SvcState::External;
-                    sup.status_dirty = true;
-                    tracing::info!(
-                        "ready for frames from an external publisher: iceoryx2 service {}, file prefix {} (README \"Frames in\")",
-                        sup.names.service(Topic::Frames),
-                        sup.names.file_prefix()
-                    );
-                } else {
-                    sup.start(ServiceKind::CameraReader);
-                }
-            }
-        }
+        sup.start_source_when_ready();
         for t in tracks.drain()? {
             sup.on_track(t)?;
         }
-        masks.clear_wakeups();
-        while let Some(sample) = masks.next_sample()? {
-            let h = *sample.user_header();
-            if h.has(mask_flags::GONE) {
-                sup.on_masks_gone(&h)?;
-                continue;
-            }
-            match MasksView::new(sample.user_header(), sample.payload()) {
-                Ok(view) => {
-                    let segment_wanted = view.header.has(mask_flags::SEGMENT_WANTED);
-                    sup.ledger
-                        .on_masks(view.header.seq, view.source(), segment_wanted);
-                    recorder.record(&view)
-                }
-                Err(e) => tracing::warn!("not recording masks: {e:#}"),
-            }
-        }
+        sup.drain_masks(&masks, &mut recorder)?;
         frames.clear_wakeups();
         while let Some(sample) = frames.next_sample()? {
             let header = *sample.user_header();
@@ -1050,22 +620,7 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
         }
         sup.route_ready(&routes)?;
         // Services only fail when one dies: what follows from it is decided then.
-        if sup.watch_children(false)? {
-            sup.ledger.on_worker_lost();
-            sup.reroute_orphans(&routes)?;
-            if sup.config.run.require_masks {
-                if let Some(reason) = sup.degraded().first() {
-                    sup.fatal = Some(format!(
-                        "{reason}; run.require_masks (--require-masks) makes this a failure"
-                    ));
-                }
-            }
-        }
-        for kind in [ServiceKind::CameraReader, ServiceKind::Slam] {
-            if let SvcState::Failed { reason } = &sup.svc(kind).state {
-                sup.fatal = Some(reason.clone());
-            }
-        }
+        sup.on_deaths(&routes)?;
         sup.check_stall();
         if sup.fatal.is_some() {
             break;

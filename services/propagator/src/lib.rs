@@ -10,6 +10,8 @@
 //! - [`sam2`]: the `sam2` backend, SAM 2's image encoder and prompt/mask
 //!   decoder through ONNX Runtime, for users who have its weights.
 
+#![deny(missing_docs)]
+
 pub mod lk;
 pub mod newcomers;
 pub mod propagate;

@@ -9,6 +9,7 @@ use crate::pyramid::{Gray, Pyramid};
 pub struct LkParams {
     /// Half size of the square window (window = 2*r+1 pixels).
     pub radius: usize,
+    /// Gauss-Newton iterations per level at most.
     pub iterations: usize,
     /// Stop iterating when the update is smaller than this (pixels).
     pub epsilon: f32,

@@ -36,6 +36,7 @@ use slam_core::Camera;
 use crate::lk::{track, LkParams};
 use crate::pyramid::{Gray, Pyramid};
 
+/// The newcomer check's parameters.
 #[derive(Debug, Clone, Copy)]
 pub struct NewcomerParams {
     /// Spacing of the background grid (pixels).
@@ -51,6 +52,7 @@ pub struct NewcomerParams {
     /// on its own (fast turns blur, and small model errors grow with the
     /// motion).
     pub min_residual_px: f64,
+    /// See `min_residual_px`.
     pub relative_residual: f64,
     /// A cell's point is tracked only where LK's window has this much
     /// texture in both directions (smallest structure-tensor eigenvalue
@@ -104,6 +106,7 @@ pub struct Newcomer {
     pub cells: usize,
     /// Bounding box of the group in the new frame: x0, y0, x1, y1 (pixels).
     pub bbox: [usize; 4],
+    /// Why it asks.
     pub why: Why,
 }
 
@@ -229,6 +232,7 @@ fn fit_motion(flows: &[Flow], indices: &[usize]) -> Option<Motion> {
 }
 
 impl NewcomerCheck {
+    /// A check for `camera` with `params`.
     pub fn new(camera: Camera, params: NewcomerParams) -> Self {
         Self {
             params,

@@ -23,6 +23,7 @@ use crate::lk::{track, LkParams};
 use crate::newcomers::{DepthImage, Newcomer, NewcomerCheck};
 use crate::pyramid::{Gray, Pyramid};
 
+/// The LK propagator's parameters.
 #[derive(Debug, Clone, Copy)]
 pub struct PropagatorParams {
     /// Spacing of the tracked points inside a mask (pixels).
@@ -38,7 +39,9 @@ pub struct PropagatorParams {
     /// what lets the scene cover a person (occlusion) and what stops the mask
     /// from smearing onto background the motion model drags along.
     pub max_grey_difference: f32,
+    /// Levels of the image pyramids.
     pub pyramid_levels: usize,
+    /// Point tracking.
     pub lk: LkParams,
 }
 
@@ -61,11 +64,13 @@ impl Default for PropagatorParams {
 pub struct Affine(pub [f32; 6]);
 
 impl Affine {
+    /// The point `(x, y)` moved by the transform.
     pub fn apply(&self, (x, y): (f32, f32)) -> (f32, f32) {
         let m = &self.0;
         (m[0] * x + m[1] * y + m[2], m[3] * x + m[4] * y + m[5])
     }
 
+    /// The inverse transform (None: singular).
     pub fn inverse(&self) -> Option<Self> {
         let m = &self.0;
         let det = m[0] * m[4] - m[1] * m[3];
@@ -241,6 +246,7 @@ pub struct LkPropagator {
 }
 
 impl LkPropagator {
+    /// A propagator with `params` (no newcomer check).
     pub fn new(params: PropagatorParams) -> Self {
         Self {
             params,

@@ -3,8 +3,11 @@
 /// A single-channel float image, row-major.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Gray {
+    /// Columns.
     pub width: usize,
+    /// Rows.
     pub height: usize,
+    /// Grey values (0-255), row by row.
     pub data: Vec<f32>,
 }
 
@@ -22,6 +25,7 @@ impl Gray {
         }
     }
 
+    /// The value at `(x, y)` (inside the image).
     #[inline]
     pub fn at(&self, x: usize, y: usize) -> f32 {
         self.data[y * self.width + x]
@@ -73,10 +77,12 @@ impl Gray {
 /// Level 0 is the full image; each further level has half the size.
 #[derive(Debug, Clone)]
 pub struct Pyramid {
+    /// Level 0 is the image, each next one half its size.
     pub levels: Vec<Gray>,
 }
 
 impl Pyramid {
+    /// `levels` levels built from `base`.
     pub fn new(base: Gray, levels: usize) -> Self {
         let mut out = vec![base];
         while out.len() < levels.max(1) {

@@ -35,8 +35,11 @@ use pipeline::runtime::InputError;
 use pipeline::views::{FrameView, MasksView};
 use shared_types::{Instance, MAX_INSTANCES};
 
+/// The image encoder's input names (checked at load).
 pub const ENCODER_INPUTS: &[&str] = &["image"];
+/// The image encoder's output names.
 pub const ENCODER_OUTPUTS: &[&str] = &["high_res_feats_0", "high_res_feats_1", "image_embed"];
+/// The decoder's input names.
 pub const DECODER_INPUTS: &[&str] = &[
     "image_embed",
     "high_res_feats_0",
@@ -46,6 +49,7 @@ pub const DECODER_INPUTS: &[&str] = &[
     "mask_input",
     "has_mask_input",
 ];
+/// The decoder's output names.
 pub const DECODER_OUTPUTS: &[&str] = &["masks", "iou_predictions"];
 
 /// ImageNet normalisation of SAM 2's image encoder (RGB, 0..1 before it).
@@ -57,7 +61,9 @@ const MASK_LOGIT_SCALE: f32 = 20.0;
 const MASK_LOGIT_BIAS: f32 = -10.0;
 /// Point labels of SAM's prompt encoder.
 pub const POSITIVE: f32 = 1.0;
+/// A box's top-left corner.
 pub const BOX_TOP_LEFT: f32 = 2.0;
+/// A box's bottom-right corner.
 pub const BOX_BOTTOM_RIGHT: f32 = 3.0;
 /// Objects smaller than this (pixels) end.
 const MIN_OBJECT_PX: usize = 50;
@@ -65,12 +71,19 @@ const MIN_OBJECT_PX: usize = 50;
 /// Settings of the backend, resolved from `[services.propagator]`.
 #[derive(Debug, Clone)]
 pub struct Sam2Settings {
+    /// The image encoder (verified).
     pub encoder: PathBuf,
+    /// The prompt / mask decoder (verified).
     pub decoder: PathBuf,
+    /// The encoder's square input.
     pub input_size: usize,
+    /// An object ends below this predicted IoU...
     pub min_predicted_iou: f32,
+    /// ...or below this share of its keyframe area.
     pub min_area_ratio: f32,
+    /// Positive points inside the previous mask per prompt.
     pub prompt_points: usize,
+    /// ONNX Runtime intra-op threads.
     pub threads: usize,
 }
 
@@ -174,7 +187,9 @@ pub fn to_input(x: f32, y: f32, w: usize, h: usize, n: usize) -> [f32; 2] {
 /// A decoder prompt: point coordinates (input pixels) and their labels.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Prompt {
+    /// x, y per point.
     pub coords: Vec<[f32; 2]>,
+    /// Its label per point ([`POSITIVE`], the box corners).
     pub labels: Vec<f32>,
 }
 
@@ -361,6 +376,7 @@ pub struct Sam2Propagator {
 }
 
 impl Sam2Propagator {
+    /// Both models loaded in ONNX Runtime with `settings`.
     pub fn load(env: ort::environment::Environment, settings: Sam2Settings) -> Result<Self> {
         let encoder = open_session(&env, &settings.encoder, settings.threads)?;
         check_signature(

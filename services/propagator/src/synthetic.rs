@@ -5,7 +5,9 @@
 
 /// One rendered frame: RGB8 and the object's true mask.
 pub struct Rendered {
+    /// RGB8, row by row.
     pub rgb: Vec<u8>,
+    /// The object's true mask, row by row.
     pub mask: Vec<bool>,
 }
 

@@ -1,5 +1,6 @@
 //! The 80 COCO class names in the order of the shipped models' outputs.
 
+/// COCO's class names, index = the models' class id.
 pub const CLASSES: [&str; 80] = [
     "person",
     "bicycle",

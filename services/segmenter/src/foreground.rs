@@ -26,10 +26,12 @@ pub struct ForegroundParams {
     /// The mask's 10th-90th percentile depth span may be at most this many
     /// metres, or `max_span_ratio` of its median depth if that is more.
     pub max_span_m: f32,
+    /// See `max_span_m`.
     pub max_span_ratio: f32,
     /// Ring pixels count as behind the mask when farther than its median by
     /// this many metres, or `gap_ratio` of the median if that is more.
     pub gap_m: f32,
+    /// See `gap_m`.
     pub gap_ratio: f32,
     /// Share of the ring (pixels not in front of the mask) that must be
     /// behind it.

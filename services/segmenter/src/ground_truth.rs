@@ -14,6 +14,8 @@ use shared_types::{Instance, MAX_INSTANCES};
 /// COCO's `person`, the class the synthesised objects are.
 const PERSON: u32 = 0;
 
+/// The `ground-truth` backend: a synthesised sequence's exact masks
+/// (`masks/` of the dataset), as if a perfect segmenter made them.
 pub struct GroundTruthMasks {
     masks: MaskList,
 }

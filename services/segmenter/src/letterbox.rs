@@ -10,15 +10,19 @@ pub struct Letterbox {
     pub scale: f32,
     /// Padding left and top (input pixels).
     pub pad_x: usize,
+    /// See `pad_x`.
     pub pad_y: usize,
     /// Size of the resized image inside the input.
     pub inner_w: usize,
+    /// See `inner_w`.
     pub inner_h: usize,
 }
 
+/// The grey of the padding (Ultralytics' 114 of 255).
 pub const PAD_VALUE: f32 = 114.0 / 255.0;
 
 impl Letterbox {
+    /// A `width` x `height` image fitted into a `size` x `size` input.
     pub fn new(width: usize, height: usize, size: usize) -> Self {
         let scale = (size as f32 / width as f32).min(size as f32 / height as f32);
         let inner_w = ((width as f32 * scale).round() as usize).min(size);

@@ -13,6 +13,8 @@
 //!   ablation's reference row), a `MaskModel` too.
 //! - [`maskrcnn`]: the Mask R-CNN backend (torchvision ONNX export signature).
 
+#![deny(missing_docs)]
+
 pub mod coco;
 pub mod foreground;
 pub mod ground_truth;

@@ -31,8 +31,11 @@ pub const MASK_THRESHOLD: f32 = 0.5;
 /// A mask pasted into the image: rows of probabilities from (x0, y0).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Pasted {
+    /// The first column.
     pub x0: usize,
+    /// The first row.
     pub y0: usize,
+    /// Probabilities, row by row.
     pub rows: Vec<Vec<f32>>,
 }
 
@@ -108,9 +111,13 @@ pub fn paste_mask(
 
 /// The raw outputs of one inference.
 pub struct RawDetections<'a> {
+    /// x0 y0 x1 y1 per detection (image pixels).
     pub boxes: &'a [f32],
+    /// COCO label per detection (torchvision's 1-based ids).
     pub labels: &'a [i64],
+    /// Score per detection.
     pub scores: &'a [f32],
+    /// Soft masks per detection.
     pub masks: &'a [f32],
     /// Height and width of each mask.
     pub mask_size: (usize, usize),
@@ -214,6 +221,8 @@ impl MaskRcnn {
         })
     }
 
+    /// The dynamic objects in an RGB image (`width` x `height`): their
+    /// instances, and their labels painted into `labels`.
     pub fn segment(
         &mut self,
         rgb: &[u8],

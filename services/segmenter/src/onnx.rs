@@ -21,17 +21,24 @@ use crate::yolo::{candidates, nms, paint_masks, Detection, Prototypes, MASK_COEF
 /// Settings of the backend, resolved from the configuration.
 #[derive(Debug, Clone)]
 pub struct YoloSettings {
+    /// The model file (verified).
     pub model: PathBuf,
+    /// The square network input in pixels.
     pub input_size: usize,
+    /// Minimum class score of an instance.
     pub score_threshold: f32,
     /// Detections from here up to `score_threshold` are kept where they
     /// continue an object of the masks before or depth shows them standing
     /// in front of their surroundings ([`crate::foreground`]); at or above
     /// `score_threshold`, none is kept that way.
     pub weak_score_threshold: f32,
+    /// How a weak detection is shown to stand in front.
     pub foreground: ForegroundParams,
+    /// Class-wise NMS overlap.
     pub iou_threshold: f32,
+    /// COCO ids that become dynamic masks.
     pub dynamic_classes: Vec<usize>,
+    /// ONNX Runtime intra-op threads.
     pub threads: usize,
 }
 
@@ -210,6 +217,7 @@ pub struct WeakCounts {
 }
 
 impl YoloSeg {
+    /// The model loaded in ONNX Runtime with `settings`.
     pub fn load(env: ort::environment::Environment, settings: YoloSettings) -> Result<Self> {
         let session = open_session(&env, &settings.model, settings.threads)?;
         onnx_runtime::check_signature(

@@ -12,15 +12,19 @@ use shared_types::Instance;
 
 use crate::letterbox::Letterbox;
 
+/// Mask coefficients per detection (YOLOv8-seg's prototypes).
 pub const MASK_COEFFICIENTS: usize = 32;
 
 /// One detection in input (letterbox) coordinates.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Detection {
+    /// COCO class id.
     pub class_id: usize,
+    /// Class score.
     pub score: f32,
     /// x0, y0, x1, y1 in input pixels.
     pub bbox: [f32; 4],
+    /// Weights of the prototype masks.
     pub coefficients: [f32; MASK_COEFFICIENTS],
 }
 
@@ -61,6 +65,7 @@ pub fn candidates(
     out
 }
 
+/// Intersection over union of two boxes (x0 y0 x1 y1).
 pub fn iou(a: &[f32; 4], b: &[f32; 4]) -> f32 {
     let iw = (a[2].min(b[2]) - a[0].max(b[0])).max(0.0);
     let ih = (a[3].min(b[3]) - a[1].max(b[1])).max(0.0);
@@ -95,8 +100,11 @@ pub fn nms(mut dets: Vec<Detection>, max_iou: f32, max_keep: usize) -> Vec<Detec
 
 /// Prototype masks `[32, ph, pw]`.
 pub struct Prototypes<'a> {
+    /// The values, prototype by prototype, row by row.
     pub data: &'a [f32],
+    /// Rows of one prototype.
     pub height: usize,
+    /// Columns of one prototype.
     pub width: usize,
 }
 

@@ -57,6 +57,8 @@ struct Saving {
     writer: JoinHandle<Result<String, String>>,
 }
 
+/// The SLAM's side of the ROS 2 bridge: map snapshots out, the bridge's
+/// commands (save, reset, localization mode) in.
 pub struct BridgeLink {
     map: Sender<[u8], MapHeader>,
     replies: Sender<SlamReply, ()>,

@@ -40,6 +40,7 @@ pub fn keyframe_timing(when: scheduling::KeyframeWhen) -> slam_core::KeyframeTim
     }
 }
 
+/// The core's tracking state as the wire's.
 pub fn track_state(s: TrackingState) -> TrackState {
     match s {
         TrackingState::NotInitialised => TrackState::NotInitialised,
@@ -50,6 +51,7 @@ pub fn track_state(s: TrackingState) -> TrackState {
     }
 }
 
+/// The core's per-frame counts as the wire's.
 pub fn counts(c: &FrameCounts) -> TrackCounts {
     TrackCounts {
         features: c.features,

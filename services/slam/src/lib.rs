@@ -5,6 +5,8 @@
 //! bridge ([`bridge_link`]), and the conversions between the pipeline's
 //! configuration and wire types and the core's own.
 
+#![deny(missing_docs)]
+
 pub mod bridge_link;
 pub mod convert;
 pub mod loops_csv;

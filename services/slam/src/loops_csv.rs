@@ -6,6 +6,7 @@ use std::path::Path;
 
 use slam_core::loop_closing::LoopClosure;
 
+/// The header line of `loops.csv`.
 pub const HEADER: &str =
     "timestamp,keyframe,matched_keyframe,inliers,confirmed,correction_m,correction_deg,fused_points,keyframes_moved,scale";
 

@@ -16,6 +16,8 @@ use slam_core::{MapFile, MapFileError, System};
 use crate::convert;
 use crate::tracker::{TrackInput, TrackOutcome, Tracker};
 
+/// The `orb-rgbd` backend: the SLAM core (RGB-D or monocular) with its map
+/// files (checkpoint, load, save).
 pub struct RgbdTracker {
     system: System,
     /// The frame's depth as u16 (the shared-memory payload is bytes).

@@ -14,6 +14,8 @@ use shared_types::{MaskSource, TrackCounts, TrackState};
 
 use crate::tracker::{TrackInput, TrackOutcome, Tracker};
 
+/// A test double: a made-up trajectory, a keyframe every N frames, a fixed
+/// work time per frame.
 pub struct ScriptedTracker {
     keyframe_every: u64,
     work: Duration,
@@ -22,6 +24,8 @@ pub struct ScriptedTracker {
 }
 
 impl ScriptedTracker {
+    /// A keyframe every `keyframe_every` frames, `work` per frame, every
+    /// tracked frame number appended to `seen_log` (delivery tests).
     pub fn new(keyframe_every: u64, work: Duration, seen_log: Option<PathBuf>) -> Self {
         Self {
             keyframe_every: keyframe_every.max(1),

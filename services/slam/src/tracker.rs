@@ -7,7 +7,9 @@ use slam_core::KeyframeTiming;
 
 /// Everything a tracker gets for one frame.
 pub struct TrackInput<'a> {
+    /// The frame's sequence number.
     pub seq: u64,
+    /// Its pixels (colour and depth) in shared memory.
     pub frame: &'a FrameView<'a>,
     /// Dynamic-object masks, when the frame was routed to a mask worker and
     /// the worker succeeded.
@@ -17,6 +19,7 @@ pub struct TrackInput<'a> {
 }
 
 impl TrackInput<'_> {
+    /// Who made the frame's masks (none without masks).
     pub fn mask_source(&self) -> MaskSource {
         self.masks.map(|m| m.source()).unwrap_or(MaskSource::None)
     }
@@ -27,22 +30,27 @@ impl TrackInput<'_> {
 pub struct TrackOutcome {
     /// World-from-camera pose: tx ty tz qx qy qz qw.
     pub pose: [f64; 7],
+    /// Tracked, relocalised, lost, ...
     pub state: TrackState,
     /// The frame is a keyframe now, or becomes one when its segmenter masks
     /// come (`keyframe_pending`).
     pub keyframe_inserted: bool,
+    /// The frame's keyframe waits for its segmenter masks.
     pub keyframe_pending: bool,
     /// The keyframe that waited for its segmenter masks went in with this
     /// frame, without them (tracking weakened or was lost while it waited).
     pub waiting_keyframe_inserted: bool,
     /// The next frame should be a keyframe (drives the supervisor's routing).
     pub next_needs_keyframe: bool,
+    /// Features, inliers, map size and step times (frames.csv).
     pub counts: TrackCounts,
 }
 
 /// A SLAM implementation as the service sees it.
 pub trait Tracker {
+    /// The backend's name (logged at start).
     fn name(&self) -> &str;
+    /// Tracks one frame.
     fn track(&mut self, input: &TrackInput) -> TrackOutcome;
     /// At stop: writes what the tracker keeps (map files); the error names
     /// the file.

@@ -77,12 +77,27 @@ type MasksSample = Sample<Svc, [u8], MasksHeader>;
 /// there.
 const RECENT_MASKS: usize = 3;
 
+/// A mask worker's state between wake-ups.
+struct Worker {
+    role: MaskSource,
+    model: Box<dyn MaskModel>,
+    /// Routes to work on (the scheduling crate's queue rule).
+    queue: WorkQueue<Route>,
+    /// The newest frames, held in place (not copied).
+    held: VecDeque<FrameSample>,
+    /// The segmenter's newest masks (held in place, not copied).
+    recent: VecDeque<MasksSample>,
+    /// Propagator: frames the segmenter works on whose routes came before
+    /// them; kept when they arrive.
+    keep_on_arrival: VecDeque<u64>,
+    /// Routed frames already replaced by newer ones (real time): counted and
+    /// said once at the end instead of a warning per frame.
+    not_held: u64,
+    published: u64,
+}
+
 /// Runs a mask worker until SIGTERM.
-pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>) -> Result<()> {
-    let mine = |kind: RouteKind| match role {
-        MaskSource::Segmenter => kind.segments(),
-        _ => kind.propagates(),
-    };
+pub fn run(ctx: ServiceContext, role: MaskSource, model: Box<dyn MaskModel>) -> Result<()> {
     let frames = ctx.transport.slice_receiver::<FrameHeader>(Topic::Frames)?;
     let routes = ctx.transport.receiver::<Route>(Topic::Routes)?;
     // Both read masks: the propagator the segmenter's (its prompts), the
@@ -97,127 +112,172 @@ pub fn run(ctx: ServiceContext, role: MaskSource, mut model: Box<dyn MaskModel>)
     let _c = attach(&ws, &masks_in)?;
     ctx.announce_ready()?;
     tracing::info!("{} ready with model '{}'", role.as_str(), model.name());
-
-    let mut queue: WorkQueue<Route> = WorkQueue::new(ctx.config.run.mode);
-    let mut held: VecDeque<FrameSample> = VecDeque::new();
-    // The segmenter's newest masks (held in place, not copied).
-    let mut recent: VecDeque<MasksSample> = VecDeque::new();
-    // Propagator: frames the segmenter works on whose routes came before
-    // them; kept when they arrive.
-    let mut keep_on_arrival: VecDeque<u64> = VecDeque::new();
-    // Routed frames already replaced by newer ones (real time): counted and
-    // said once at the end instead of a warning per frame.
-    let mut not_held = 0u64;
-    let mut published = 0u64;
-    loop {
-        if wait(&ws, Duration::from_secs(1))? == Wake::Terminate {
-            tracing::info!("{}: masks published: {published}", role.as_str());
-            if let Some(summary) = model.summary() {
-                tracing::info!("{}: {summary}", role.as_str());
-            }
-            if not_held > 0 {
-                tracing::info!(
-                    "{}: {not_held} routed frames had been replaced by newer ones before their turn (real time: the supervisor counts them as dropped)",
-                    role.as_str()
-                );
-            }
-            return Ok(());
-        }
+    let mut worker = Worker {
+        role,
+        model,
+        queue: WorkQueue::new(ctx.config.run.mode),
+        held: VecDeque::new(),
+        recent: VecDeque::new(),
+        keep_on_arrival: VecDeque::new(),
+        not_held: 0,
+        published: 0,
+    };
+    while wait(&ws, Duration::from_secs(1))? != Wake::Terminate {
         for r in routes.drain()? {
-            tracing::debug!(seq = r.seq, kind = r.kind, held = held.len(), "route");
-            let kind = RouteKind::from_u32(r.kind);
-            if role == MaskSource::Propagator && kind.is_some_and(|k| k.segments()) {
-                // Kept as soon as the frame is here: in real time newer
-                // frames may replace it before this worker's turn, and its
-                // prompt then found no image (under load 6-9 of 24 prompts
-                // a run, 30 fps with 2 busy processes).
-                match held_frame(&held, r.seq) {
-                    Some(frame) => model.keep(&frame),
-                    None => {
-                        keep_on_arrival.push_back(r.seq);
-                        if keep_on_arrival.len() > HELD_FRAMES {
-                            keep_on_arrival.pop_front();
-                        }
+            worker.on_route(r);
+        }
+        worker.take_frames(&frames)?;
+        worker.take_masks(&masks_in)?;
+        worker.work(&masks_out)?;
+    }
+    worker.say_summary();
+    Ok(())
+}
+
+impl Worker {
+    fn mine(&self, kind: RouteKind) -> bool {
+        match self.role {
+            MaskSource::Segmenter => kind.segments(),
+            _ => kind.propagates(),
+        }
+    }
+
+    fn on_route(&mut self, r: Route) {
+        tracing::debug!(seq = r.seq, kind = r.kind, held = self.held.len(), "route");
+        let kind = RouteKind::from_u32(r.kind);
+        if self.role == MaskSource::Propagator && kind.is_some_and(|k| k.segments()) {
+            // Kept as soon as the frame is here: in real time newer
+            // frames may replace it before this worker's turn, and its
+            // prompt then found no image (under load 6-9 of 24 prompts
+            // a run, 30 fps with 2 busy processes).
+            match held_frame(&self.held, r.seq) {
+                Some(frame) => self.model.keep(&frame),
+                None => {
+                    self.keep_on_arrival.push_back(r.seq);
+                    if self.keep_on_arrival.len() > HELD_FRAMES {
+                        self.keep_on_arrival.pop_front();
                     }
                 }
             }
-            if kind.is_some_and(mine) {
-                queue.on_route(r.seq, r);
-            }
         }
+        if kind.is_some_and(|k| self.mine(k)) {
+            self.queue.on_route(r.seq, r);
+        }
+    }
+
+    /// The frames published since the last wake-up, held (the newest
+    /// [`HELD_FRAMES`]).
+    fn take_frames(
+        &mut self,
+        frames: &crate::transport::Receiver<[u8], FrameHeader>,
+    ) -> Result<()> {
         frames.clear_wakeups();
         while let Some(sample) = frames.next_sample()? {
             let h = sample.user_header();
             if !h.carries_pixels() {
                 continue;
             }
-            held.retain(|s| s.user_header().seq != h.seq);
-            if let Some(i) = keep_on_arrival.iter().position(|&s| s == h.seq) {
-                keep_on_arrival.remove(i);
+            self.held.retain(|s| s.user_header().seq != h.seq);
+            if let Some(i) = self.keep_on_arrival.iter().position(|&s| s == h.seq) {
+                self.keep_on_arrival.remove(i);
                 if let Ok(frame) = FrameView::new(h, sample.payload()) {
-                    model.keep(&frame);
+                    self.model.keep(&frame);
                 }
             }
-            held.push_back(sample);
-            while held.len() > HELD_FRAMES {
-                held.pop_front();
+            self.held.push_back(sample);
+            while self.held.len() > HELD_FRAMES {
+                self.held.pop_front();
             }
         }
+        Ok(())
+    }
+
+    /// The masks published since the last wake-up: the propagator's
+    /// prompts; the segmenter keeps the newest ones.
+    fn take_masks(
+        &mut self,
+        masks_in: &crate::transport::Receiver<[u8], MasksHeader>,
+    ) -> Result<()> {
         masks_in.clear_wakeups();
         while let Some(sample) = masks_in.next_sample()? {
             let h = sample.user_header();
             if h.has(mask_flags::GONE) || h.has(mask_flags::FAILED) {
                 continue; // no masks came for that frame
             }
-            match role {
+            match self.role {
                 MaskSource::Propagator => {
                     let masks = MasksView::new(h, sample.payload())?;
                     if masks.source() == MaskSource::Segmenter {
-                        model.prompt(held_frame(&held, masks.header.seq).as_ref(), &masks);
+                        let frame = held_frame(&self.held, masks.header.seq);
+                        self.model.prompt(frame.as_ref(), &masks);
                     }
                 }
                 _ => {
-                    recent.retain(|s| s.user_header().seq != h.seq);
-                    recent.push_back(sample);
-                    while recent.len() > RECENT_MASKS {
-                        recent.pop_front();
+                    self.recent.retain(|s| s.user_header().seq != h.seq);
+                    self.recent.push_back(sample);
+                    while self.recent.len() > RECENT_MASKS {
+                        self.recent.pop_front();
                     }
                 }
             }
         }
-        for route in queue.keep_newest() {
-            publish_gone(&masks_out, role, &route)?;
+        Ok(())
+    }
+
+    /// Works through the queue as far as the held frames allow; routes the
+    /// queue passes over are told gone in real time.
+    fn work(&mut self, out: &crate::transport::Sender<[u8], MasksHeader>) -> Result<()> {
+        for route in self.queue.keep_newest() {
+            publish_gone(out, self.role, &route)?;
         }
         loop {
-            let oldest = held.front().map(|s| s.user_header().seq);
+            let oldest = self.held.front().map(|s| s.user_header().seq);
+            let held = &self.held;
             let is_held = |seq| held.iter().any(|s| s.user_header().seq == seq);
-            let route = match queue.next(is_held, oldest) {
+            let route = match self.queue.next(is_held, oldest) {
                 Next::Work(route) => route,
                 Next::PassOver { route, tell_gone } => {
-                    not_held += 1;
+                    self.not_held += 1;
                     if tell_gone {
                         // Real time: expected under load, counted at the end.
                         tracing::debug!(seq = route.seq, "routed frame no longer held; skipping");
-                        publish_gone(&masks_out, role, &route)?;
+                        publish_gone(out, self.role, &route)?;
                     } else {
                         tracing::warn!(seq = route.seq, "routed frame no longer held; skipping");
                     }
                     continue;
                 }
-                Next::Wait => break,
+                Next::Wait => return Ok(()),
             };
-            let sample = held
+            let sample = self
+                .held
                 .iter()
                 .find(|s| s.user_header().seq == route.seq)
                 .expect("the queue works only on held frames");
             tracing::debug!(seq = route.seq, "making masks");
-            let previous = recent
+            let previous = self
+                .recent
                 .iter()
                 .filter(|m| m.user_header().seq < route.seq)
                 .max_by_key(|m| m.user_header().seq)
                 .and_then(|m| MasksView::new(m.user_header(), m.payload()).ok());
-            publish_masks(&masks_out, &mut *model, role, &route, sample, previous)?;
-            published += 1;
+            publish_masks(out, &mut *self.model, self.role, &route, sample, previous)?;
+            self.published += 1;
+        }
+    }
+
+    /// At stop: what the worker did, in one or three lines.
+    fn say_summary(&self) {
+        let role = self.role.as_str();
+        tracing::info!("{role}: masks published: {}", self.published);
+        if let Some(summary) = self.model.summary() {
+            tracing::info!("{role}: {summary}");
+        }
+        if self.not_held > 0 {
+            tracing::info!(
+                "{role}: {} routed frames had been replaced by newer ones before their turn (real time: the supervisor counts them as dropped)",
+                self.not_held
+            );
         }
     }
 }

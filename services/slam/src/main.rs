@@ -198,100 +198,10 @@ fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
             if let Some(b) = &mut bridge {
                 b.finish()?;
             }
-            // (`finish` inserts a keyframe still waiting for its masks.)
-            tracker.finish().map_err(anyhow::Error::msg)?;
-            record_loops(&mut *tracker, loops_out)?;
-            if let Some(path) = &outputs.corrected_trajectory {
-                if let Some(trajectory) = tracker.corrected_trajectory() {
-                    std::fs::write(path, trajectory.to_tum())
-                        .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
-                    tracing::info!("loop-corrected trajectory written to {}", path.display());
-                }
-            }
-            if let Some(path) = &outputs.map {
-                let points = tracker.map_points();
-                write_ply(path, &points).map_err(|e| {
-                    anyhow::anyhow!("cannot write the map to {}: {e}", path.display())
-                })?;
-                tracing::info!(points = points.len(), "map written to {}", path.display());
-            }
-            return Ok(());
+            return finish(&mut *tracker, outputs);
         }
-        frames.clear_wakeups();
-        while frames.has_samples()? {
-            if st.frames.len() >= max_frames {
-                st.frames.pop_front();
-            }
-            let Some(sample) = frames.next_sample()? else {
-                break;
-            };
-            let h = *sample.user_header();
-            if h.has(frame_flags::END_OF_STREAM) || h.has(frame_flags::DROPPED_AT_SOURCE) {
-                continue;
-            }
-            if let Some(last) = st.last.filter(|l| h.seq <= l.seq) {
-                if h.seq == last.seq {
-                    tracks.send(last)?; // replayed frame: answer again
-                }
-                continue;
-            }
-            st.frames.retain(|f| f.sample.user_header().seq != h.seq);
-            st.frames.push_back(HeldFrame {
-                sample,
-                received_ns: now_ns(),
-            });
-        }
-        masks.clear_wakeups();
-        while masks.has_samples()? {
-            if st.masks.len() >= max_masks {
-                st.masks.pop_front();
-            }
-            let Some(sample) = masks.next_sample()? else {
-                break;
-            };
-            if sample.user_header().has(mask_flags::GONE) {
-                continue; // that frame will not be tracked (the supervisor drops it)
-            }
-            let header = sample.user_header();
-            let seq = header.seq;
-            let segmented = from_segmenter(&sample);
-            if header.has(mask_flags::SEGMENT_WANTED) {
-                st.last_moved = st.last_moved.max(Some(seq));
-            }
-            if segmented {
-                if st.last_segmented.is_none_or(|s| seq > s) {
-                    st.segmented_empty =
-                        header.num_instances == 0 && !header.has(mask_flags::FAILED);
-                    st.last_segmented = Some(seq);
-                }
-                if let Some(waiting) = st
-                    .pending_keyframe
-                    .filter(|&k| tracking::completes_waiting_keyframe(k, seq))
-                {
-                    // The pending keyframe's own masks (or a newer frame's:
-                    // its own will not come) complete it.
-                    let own = waiting == seq;
-                    let view = MasksView::new(sample.user_header(), sample.payload());
-                    let failed = sample.user_header().has(mask_flags::FAILED);
-                    let masks = view.ok().filter(|_| own && !failed);
-                    tracker.complete_keyframe(masks.as_ref());
-                    st.pending_keyframe = None;
-                    tracing::debug!(seq = waiting, own, "pending keyframe inserted");
-                }
-            }
-            if st.last.is_some_and(|l| seq <= l.seq) {
-                // Real time: the segmenter's result for a frame already
-                // tracked with propagated masks (the propagator takes it as
-                // its prompt), or a propagator's after the segmenter's.
-                continue;
-            }
-            let segmented_held = |m: &MasksSample| m.user_header().seq == seq && from_segmenter(m);
-            if !segmented && st.masks.iter().any(segmented_held) {
-                continue; // a frame's segmenter masks beat its propagated ones
-            }
-            st.masks.retain(|m| m.user_header().seq != seq);
-            st.masks.push_back(sample);
-        }
+        take_frames(&mut st, &frames, &tracks, max_frames)?;
+        take_masks(&mut st, &masks, &mut *tracker, max_masks)?;
         for r in routes.drain()? {
             st.routes.insert(r.seq, r);
         }
@@ -318,6 +228,124 @@ fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
             }
         }
     }
+}
+
+/// At stop: the tracker's files (a keyframe still waiting for its masks
+/// goes in), the loops, the loop-corrected trajectory and the map.
+fn finish(tracker: &mut dyn Tracker, outputs: &Outputs) -> Result<()> {
+    tracker.finish().map_err(anyhow::Error::msg)?;
+    record_loops(tracker, outputs.loops.as_deref())?;
+    if let Some(path) = &outputs.corrected_trajectory {
+        if let Some(trajectory) = tracker.corrected_trajectory() {
+            std::fs::write(path, trajectory.to_tum())
+                .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
+            tracing::info!("loop-corrected trajectory written to {}", path.display());
+        }
+    }
+    if let Some(path) = &outputs.map {
+        let points = tracker.map_points();
+        write_ply(path, &points)
+            .map_err(|e| anyhow::anyhow!("cannot write the map to {}: {e}", path.display()))?;
+        tracing::info!(points = points.len(), "map written to {}", path.display());
+    }
+    Ok(())
+}
+
+/// The frames published since the last wake-up, held (at most `max`); a
+/// replayed frame already tracked gets its Track again.
+fn take_frames(
+    st: &mut State,
+    frames: &pipeline::transport::Receiver<[u8], FrameHeader>,
+    tracks: &pipeline::transport::Sender<Track, ()>,
+    max: usize,
+) -> Result<()> {
+    frames.clear_wakeups();
+    while frames.has_samples()? {
+        if st.frames.len() >= max {
+            st.frames.pop_front();
+        }
+        let Some(sample) = frames.next_sample()? else {
+            break;
+        };
+        let h = *sample.user_header();
+        if h.has(frame_flags::END_OF_STREAM) || h.has(frame_flags::DROPPED_AT_SOURCE) {
+            continue;
+        }
+        if let Some(last) = st.last.filter(|l| h.seq <= l.seq) {
+            if h.seq == last.seq {
+                tracks.send(last)?; // replayed frame: answer again
+            }
+            continue;
+        }
+        st.frames.retain(|f| f.sample.user_header().seq != h.seq);
+        st.frames.push_back(HeldFrame {
+            sample,
+            received_ns: now_ns(),
+        });
+    }
+    Ok(())
+}
+
+/// The masks published since the last wake-up, held (at most `max`; a
+/// frame's segmenter masks beat its propagated ones); segmenter masks
+/// complete the keyframe waiting for them.
+fn take_masks(
+    st: &mut State,
+    masks: &pipeline::transport::Receiver<[u8], MasksHeader>,
+    tracker: &mut dyn Tracker,
+    max_masks: usize,
+) -> Result<()> {
+    masks.clear_wakeups();
+    while masks.has_samples()? {
+        if st.masks.len() >= max_masks {
+            st.masks.pop_front();
+        }
+        let Some(sample) = masks.next_sample()? else {
+            break;
+        };
+        if sample.user_header().has(mask_flags::GONE) {
+            continue; // that frame will not be tracked (the supervisor drops it)
+        }
+        let header = sample.user_header();
+        let seq = header.seq;
+        let segmented = from_segmenter(&sample);
+        if header.has(mask_flags::SEGMENT_WANTED) {
+            st.last_moved = st.last_moved.max(Some(seq));
+        }
+        if segmented {
+            if st.last_segmented.is_none_or(|s| seq > s) {
+                st.segmented_empty = header.num_instances == 0 && !header.has(mask_flags::FAILED);
+                st.last_segmented = Some(seq);
+            }
+            if let Some(waiting) = st
+                .pending_keyframe
+                .filter(|&k| tracking::completes_waiting_keyframe(k, seq))
+            {
+                // The pending keyframe's own masks (or a newer frame's:
+                // its own will not come) complete it.
+                let own = waiting == seq;
+                let view = MasksView::new(sample.user_header(), sample.payload());
+                let failed = sample.user_header().has(mask_flags::FAILED);
+                let masks = view.ok().filter(|_| own && !failed);
+                tracker.complete_keyframe(masks.as_ref());
+                st.pending_keyframe = None;
+                tracing::debug!(seq = waiting, own, "pending keyframe inserted");
+            }
+        }
+        if st.last.is_some_and(|l| seq <= l.seq) {
+            // Real time: the segmenter's result for a frame already
+            // tracked with propagated masks (the propagator takes it as
+            // its prompt), or a propagator's after the segmenter's.
+            continue;
+        }
+        let segmented_held = |m: &MasksSample| m.user_header().seq == seq && from_segmenter(m);
+        if !segmented && st.masks.iter().any(segmented_held) {
+            continue; // a frame's segmenter masks beat its propagated ones
+        }
+        st.masks.retain(|m| m.user_header().seq != seq);
+        st.masks.push_back(sample);
+    }
+    Ok(())
 }
 
 /// Tracks one ready frame ([`tracking::next_frame`]: oldest first in

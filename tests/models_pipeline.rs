@@ -40,10 +40,24 @@ fn real_time_takes_the_320_export_unless_a_size_is_set() {
     // segmenter's pace bounds the keyframes, so the smaller export.
     let dir = scratch("yolo-realtime");
     let rt = realtime_run(&dir, "", "30", "YOLOv8-seg input 320 px (Realtime mode)");
+    // The segmenter made masks at 320 in real time. Whether SLAM tracked a
+    // frame with them is timing: when a frame's segmenter masks and a newer
+    // frame's propagated ones reach SLAM in one wake-up, real time tracks
+    // the newer frame and drops the older (on a loaded CI machine frame 0,
+    // routed to the segmenter, went so in 1 of 3 runs). So the check is on
+    // the masks the run recorded, and that frames were tracked with masks.
+    let masks = std::fs::read_to_string(rt.run_dir.join("masks.csv")).unwrap();
+    assert!(
+        masks
+            .lines()
+            .skip(1)
+            .any(|l| l.split(',').nth(1) == Some("segmenter")),
+        "no segmenter masks in real time:\n{masks}"
+    );
     let rows = read_rows(&rt.run_dir);
     assert!(
-        rows.iter().any(|r| r["mask_source"] == "segmenter"),
-        "no segmenter masks in real time"
+        rows.iter().any(|r| r["mask_source"] != "none"),
+        "no frame tracked with masks in real time"
     );
     assert_no_shm_left(&rt.run_id);
     // A size that is set wins over the mode.

@@ -277,6 +277,34 @@ pub mod mask_flags {
     /// who walked in after the keyframe): the supervisor routes the next
     /// frame to the segmenter as if SLAM had asked for a keyframe.
     pub const SEGMENT_WANTED: u32 = 1 << 2;
+    /// Made by a worker on another machine (`location = "remote"`).
+    pub const REMOTE: u32 = 1 << 3;
+    /// `location = "remote"`: no remote worker answered, so the local model
+    /// made these masks (`fallback = "local"`).
+    pub const FALLBACK: u32 = 1 << 4;
+    /// `location = "remote"`: no worker could take the frame (none alive, or
+    /// none answered in time, and `fallback = "none"`); set with
+    /// [`GONE`] (real time: the propagator carries masks) or [`FAILED`]
+    /// (lockstep: the frame goes on unmasked).
+    pub const UNAVAILABLE: u32 = 1 << 5;
+
+    /// Where a set of masks was made, for frames.csv and masks.csv: "local",
+    /// "remote", "fallback" (the local model standing in for a remote
+    /// worker), "unavailable" (no worker could take the frame) or "none"
+    /// (no masks were made).
+    pub fn origin(flags: u32) -> &'static str {
+        if flags & UNAVAILABLE != 0 {
+            "unavailable"
+        } else if flags & (FAILED | GONE) != 0 {
+            "none"
+        } else if flags & REMOTE != 0 {
+            "remote"
+        } else if flags & FALLBACK != 0 {
+            "fallback"
+        } else {
+            "local"
+        }
+    }
 }
 
 /// User header of a masks sample. The slice payload is a `width*height` label
@@ -399,6 +427,8 @@ pub struct Track {
     pub next_needs_keyframe: u32,
     /// The [`MaskSource`] of the masks used for this frame.
     pub mask_source: u32,
+    /// The [`mask_flags`] of those masks (where they were made).
+    pub mask_flags: u32,
     pub counts: TrackCounts,
     pub stamps: StageStamps,
 }

@@ -18,6 +18,7 @@ use shared_types::{
 };
 
 use crate::clock::now_ns;
+use crate::config::PipelineConfig;
 use crate::runtime::ServiceContext;
 use crate::transport::{attach, wait, waitset, Svc, Wake};
 use crate::views::{FrameView, MasksView};
@@ -63,7 +64,21 @@ pub trait MaskModel {
     fn summary(&self) -> Option<String> {
         None
     }
+
+    /// [`mask_flags`] saying where the masks just made were made
+    /// ([`mask_flags::REMOTE`], [`mask_flags::FALLBACK`]); 0: here.
+    fn origin_flags(&self) -> u32 {
+        0
+    }
 }
+
+/// The error a model returns when no worker could take the frame (a
+/// remote segmenter with `fallback = "none"` and no worker answering): real
+/// time tells the frame gone at once (the propagator carries masks),
+/// lockstep lets it go unmasked; both flag it [`mask_flags::UNAVAILABLE`].
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct Unavailable(pub String);
 
 /// Frames a worker keeps borrowed (bounded by the frames topic's QoS).
 const HELD_FRAMES: usize = 3;
@@ -94,6 +109,9 @@ struct Worker {
     /// said once at the end instead of a warning per frame.
     not_held: u64,
     published: u64,
+    /// Frames no worker could take ([`Unavailable`]).
+    unavailable: u64,
+    realtime: bool,
 }
 
 /// Runs a mask worker until SIGTERM.
@@ -121,6 +139,8 @@ pub fn run(ctx: ServiceContext, role: MaskSource, model: Box<dyn MaskModel>) -> 
         keep_on_arrival: VecDeque::new(),
         not_held: 0,
         published: 0,
+        unavailable: 0,
+        realtime: ctx.config.run.mode.is_realtime(),
     };
     while wait(&ws, Duration::from_secs(1))? != Wake::Terminate {
         for r in routes.drain()? {
@@ -228,7 +248,7 @@ impl Worker {
     /// queue passes over are told gone in real time.
     fn work(&mut self, out: &crate::transport::Sender<[u8], MasksHeader>) -> Result<()> {
         for route in self.queue.keep_newest() {
-            publish_gone(out, self.role, &route)?;
+            publish_gone(out, self.role, &route, 0)?;
         }
         loop {
             let oldest = self.held.front().map(|s| s.user_header().seq);
@@ -241,7 +261,7 @@ impl Worker {
                     if tell_gone {
                         // Real time: expected under load, counted at the end.
                         tracing::debug!(seq = route.seq, "routed frame no longer held; skipping");
-                        publish_gone(out, self.role, &route)?;
+                        publish_gone(out, self.role, &route, 0)?;
                     } else {
                         tracing::warn!(seq = route.seq, "routed frame no longer held; skipping");
                     }
@@ -261,8 +281,17 @@ impl Worker {
                 .filter(|m| m.user_header().seq < route.seq)
                 .max_by_key(|m| m.user_header().seq)
                 .and_then(|m| MasksView::new(m.user_header(), m.payload()).ok());
-            publish_masks(out, &mut *self.model, self.role, &route, sample, previous)?;
-            self.published += 1;
+            let made = MaskJob {
+                role: self.role,
+                route: &route,
+                sample,
+                previous,
+                realtime: self.realtime,
+            };
+            match publish_masks(out, &mut *self.model, made)? {
+                Published::Masks => self.published += 1,
+                Published::Unavailable => self.unavailable += 1,
+            }
         }
     }
 
@@ -272,6 +301,12 @@ impl Worker {
         tracing::info!("{role}: masks published: {}", self.published);
         if let Some(summary) = self.model.summary() {
             tracing::info!("{role}: {summary}");
+        }
+        if self.unavailable > 0 {
+            tracing::info!(
+                "{role}: {} routed frames went without its masks: no worker could take them",
+                self.unavailable
+            );
         }
         if self.not_held > 0 {
             tracing::info!(
@@ -290,31 +325,53 @@ fn held_frame(held: &VecDeque<FrameSample>, seq: u64) -> Option<FrameView<'_>> {
 }
 
 /// Real time: no masks will come for `route`'s frame (replaced before this
-/// worker's turn).
+/// worker's turn, or `extra_flags` says why).
 fn publish_gone(
     out: &crate::transport::Sender<[u8], MasksHeader>,
     role: MaskSource,
     route: &Route,
+    extra_flags: u32,
 ) -> Result<()> {
     let mut sample = out.loan(0)?;
     *sample.user_header_mut() = MasksHeader {
         seq: route.seq,
         source: role as u32,
-        flags: mask_flags::GONE,
+        flags: mask_flags::GONE | extra_flags,
         stamps: route.stamps,
         ..Default::default()
     };
     out.publish(sample)
 }
 
+/// One frame to make masks for.
+struct MaskJob<'a> {
+    role: MaskSource,
+    route: &'a Route,
+    sample: &'a FrameSample,
+    previous: Option<MasksView<'a>>,
+    realtime: bool,
+}
+
+/// What [`publish_masks`] published.
+enum Published {
+    /// Masks (or a failure: the frame goes unmasked).
+    Masks,
+    /// No worker could take the frame ([`Unavailable`]).
+    Unavailable,
+}
+
 fn publish_masks(
     out: &crate::transport::Sender<[u8], MasksHeader>,
     model: &mut dyn MaskModel,
-    role: MaskSource,
-    route: &Route,
-    sample: &FrameSample,
-    previous: Option<MasksView>,
-) -> Result<()> {
+    job: MaskJob,
+) -> Result<Published> {
+    let MaskJob {
+        role,
+        route,
+        sample,
+        previous,
+        realtime,
+    } = job;
     let start_ns = now_ns();
     let fh = sample.user_header();
     let mut header = MasksHeader {
@@ -327,6 +384,7 @@ fn publish_masks(
     header.stamps = route.stamps;
     header.stamps.masks_start_ns = start_ns;
     let mut out_sample = out.loan(fh.width as usize * fh.height as usize)?;
+    let mut outcome = Published::Masks;
     let result = FrameView::new(fh, sample.payload())
         .and_then(|frame| model.infer_after(&frame, previous.as_ref(), out_sample.payload_mut()));
     match result {
@@ -344,6 +402,20 @@ fn publish_masks(
             if model.wants_segment() {
                 header.flags |= mask_flags::SEGMENT_WANTED;
             }
+            header.flags |= model.origin_flags();
+        }
+        Err(e) if e.is::<Unavailable>() => {
+            tracing::debug!(seq = route.seq, "{e:#}");
+            if realtime {
+                // The propagator carries masks; the segmenter is free again.
+                drop(out_sample);
+                publish_gone(out, role, route, mask_flags::UNAVAILABLE)?;
+                return Ok(Published::Unavailable);
+            }
+            // Lockstep: the frame goes on unmasked, as after a failure.
+            out_sample.payload_mut().fill(0);
+            header.flags |= mask_flags::FAILED | mask_flags::UNAVAILABLE;
+            outcome = Published::Unavailable;
         }
         Err(e) => {
             // The frame goes on unmasked rather than stalling the pipeline.
@@ -356,7 +428,8 @@ fn publish_masks(
     header.inference_ns = done - start_ns;
     header.stamps.masks_done_ns = done;
     *out_sample.user_header_mut() = header;
-    out.publish(out_sample)
+    out.publish(out_sample)?;
+    Ok(outcome)
 }
 
 /// A model that finds no objects: every frame gets an empty label image,
@@ -379,18 +452,19 @@ impl MaskModel for NoObjects {
     }
 }
 
-/// Builds one backend of a worker from the service context.
-pub type ModelFactory = dyn Fn(&ServiceContext) -> Result<Box<dyn MaskModel>>;
+/// Builds one backend of a worker from the pipeline configuration.
+pub type ModelFactory = dyn Fn(&PipelineConfig) -> Result<Box<dyn MaskModel>>;
 
-/// Builds the model a worker's configuration names; unknown names are input
+/// Builds the model `[services.<kind>]` names; unknown names are input
 /// errors that list the known ones.
 pub fn model_from_config(
-    ctx: &ServiceContext,
+    kind: ServiceKind,
+    config: &PipelineConfig,
     known: &[(&str, &ModelFactory)],
 ) -> Result<Box<dyn MaskModel>> {
-    let section = ctx.kind.as_str();
-    let services = &ctx.config.services;
-    let (wanted, work_ms) = match ctx.kind {
+    let section = kind.as_str();
+    let services = &config.services;
+    let (wanted, work_ms) = match kind {
         ServiceKind::Segmenter => (
             services.segmenter.backend.as_str(),
             services.segmenter.work_ms,
@@ -407,7 +481,7 @@ pub fn model_from_config(
     }
     for (name, make) in known {
         if *name == wanted {
-            return make(ctx);
+            return make(config);
         }
     }
     let mut names: Vec<&str> = known.iter().map(|(n, _)| *n).collect();

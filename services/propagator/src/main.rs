@@ -23,30 +23,30 @@ struct Args {
 fn main() -> ExitCode {
     let args = Args::parse();
     run_service(ServiceKind::Propagator, &args.service, |ctx| {
-        let lk: &ModelFactory = &|ctx| {
+        let lk: &ModelFactory = &|config| {
             let mut lk = LkPropagator::new(PropagatorParams::default());
-            let routing = &ctx.config.routing;
+            let routing = &config.routing;
             if routing.early_segment_requests {
-                let mode = ctx.config.run.mode;
+                let mode = config.run.mode;
                 if mode.is_realtime() && routing.unseen_view_share > 0.0 {
                     tracing::debug!(
                         "routing.unseen_view_share applies to lockstep runs: in real time the segmenter would be busy on every frame it can take, at the tracking's expense"
                     );
                 }
                 lk = lk.with_newcomer_check(NewcomerCheck::for_pipeline(
-                    &ctx.config.camera,
+                    &config.camera,
                     routing,
                     mode,
                 ));
             }
             Ok(Box::new(lk))
         };
-        let sam2: &ModelFactory = &|ctx| {
-            let settings = Sam2Settings::from_config(&ctx.config.services.propagator)?;
-            let env = onnx_runtime::init_runtime(&ctx.config.onnxruntime)?;
+        let sam2: &ModelFactory = &|config| {
+            let settings = Sam2Settings::from_config(&config.services.propagator)?;
+            let env = onnx_runtime::init_runtime(&config.onnxruntime)?;
             Ok(Box::new(Sam2Propagator::load(env, settings)?))
         };
-        let model = model_from_config(&ctx, &[("lk", lk), ("sam2", sam2)])?;
+        let model = model_from_config(ctx.kind, &ctx.config, &[("lk", lk), ("sam2", sam2)])?;
         mask_worker::run(ctx, MaskSource::Propagator, model)
     })
 }

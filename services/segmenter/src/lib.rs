@@ -12,6 +12,7 @@
 //! - [`ground_truth`]: the exact masks of a synthesised sequence (the
 //!   ablation's reference row), a `MaskModel` too.
 //! - [`maskrcnn`]: the Mask R-CNN backend (torchvision ONNX export signature).
+//! - [`models`]: the backends by name, as `[services.segmenter]` selects.
 
 #![deny(missing_docs)]
 
@@ -20,5 +21,6 @@ pub mod foreground;
 pub mod ground_truth;
 pub mod letterbox;
 pub mod maskrcnn;
+pub mod models;
 pub mod onnx;
 pub mod yolo;

@@ -483,6 +483,7 @@ fn make_track(
         keyframe_inserted: outcome.keyframe_inserted as u32,
         next_needs_keyframe: outcome.next_needs_keyframe as u32,
         mask_source: masks_view.map(|m| m.source() as u32).unwrap_or(0),
+        mask_flags: masks_view.map(|m| m.header.flags).unwrap_or(0),
         counts: outcome.counts,
         stamps,
     };

@@ -98,6 +98,10 @@ pub fn service_program(config: &PipelineConfig, kind: ServiceKind) -> Result<Vec
             "bridge",
             Some("camera-in"),
         ),
+        // A remote segmenter: the link plays the segmenter's part here.
+        ServiceKind::Segmenter if config.services.segmenter.location == "remote" => {
+            (config.process(kind).command, "mask-link", None)
+        }
         _ => (config.process(kind).command, kind.as_str(), None),
     };
     if !cmd.is_empty() {

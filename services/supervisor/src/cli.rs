@@ -24,6 +24,17 @@ pub(crate) enum Command {
     /// run), 2 bad command line, 3 degraded (a mask worker was given up on;
     /// status.json and report.md say why), 130 interrupted.
     Run(Box<RunArgs>),
+    /// Make a robot's masks on this machine (a GPU box): `dynslam worker
+    /// segmenter --run NAME --connect tcp/ROBOT:7447`. The robot's run has
+    /// `services.segmenter.location = "remote"` and `remote.run = NAME`
+    /// (README "Workers on another machine"); `dynslam worker --help` lists
+    /// the worker's options.
+    #[command(disable_help_flag = true)]
+    Worker {
+        /// The worker's arguments (its role first).
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true, num_args = 0..)]
+        args: Vec<String>,
+    },
     /// Continue a run whose supervisor was stopped or killed.
     Resume {
         /// The run folder to continue.

@@ -110,6 +110,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             };
             synth(&input, &output, &options, limit, config.as_deref()).map(|()| ExitCode::SUCCESS)
         }
+        Command::Worker { args } => worker(&args),
         Command::Cameras => cameras(),
         Command::Vocab { action } => vocab(action),
         Command::MasksEval {
@@ -666,4 +667,20 @@ fn eval(
         );
     }
     Ok(())
+}
+
+/// `dynslam worker ...`: becomes the mask-worker binary next to this one
+/// (zenoh and the models stay out of the supervisor's own dependencies).
+fn worker(args: &[String]) -> Result<ExitCode> {
+    use std::os::unix::process::CommandExt;
+    let exe = std::env::current_exe().context("cannot locate the running dynslam executable")?;
+    let bin = exe.with_file_name("mask-worker");
+    if !bin.is_file() {
+        anyhow::bail!(
+            "{} not found (build all services: cargo build --release --workspace)",
+            bin.display()
+        );
+    }
+    let err = std::process::Command::new(&bin).args(args).exec();
+    Err(anyhow::Error::new(err).context(format!("cannot start {}", bin.display())))
 }

@@ -21,11 +21,12 @@ use camera_reader::source::MaskList;
 use image::GrayImage;
 use pipeline::config::SaveMasks;
 use pipeline::views::MasksView;
+use shared_types::MaskSource;
 
 pub const MASKS_DIR: &str = "masks";
 pub const MASKS_CSV: &str = "masks.csv";
 pub const MASK_IOU_CSV: &str = "mask_iou.csv";
-const HEADER: &str = "seq,source,instances,masked_px,file";
+const HEADER: &str = "seq,source,instances,masked_px,file,origin";
 const IOU_HEADER: &str = "seq,source,iou";
 
 /// Ground-truth people smaller than this are not scored (pixels, as
@@ -36,6 +37,8 @@ pub const MIN_PERSON_PX: usize = 2000;
 struct Job {
     seq: u64,
     source: &'static str,
+    /// `mask_flags::origin`: local, remote or fallback.
+    origin: &'static str,
     save: bool,
     instances: u32,
     labels: GrayImage,
@@ -135,8 +138,8 @@ impl MaskRecorder {
                     let masked = job.labels.pixels().filter(|p| p[0] != 0).count();
                     writeln!(
                         csv,
-                        "{},{},{},{},{}",
-                        job.seq, job.source, job.instances, masked, file
+                        "{},{},{},{},{},{}",
+                        job.seq, job.source, job.instances, masked, file, job.origin
                     )?;
                 }
                 csv.flush()?;
@@ -160,10 +163,28 @@ impl MaskRecorder {
         let job = Job {
             seq: h.seq,
             source: masks.source().as_str(),
+            origin: shared_types::mask_flags::origin(h.flags),
             save: self.save.keeps(masks.source()),
             instances: h.num_instances,
             labels,
         };
+        self.send(job);
+    }
+
+    /// A worker told that no worker could take frame `seq`
+    /// (`mask_flags::UNAVAILABLE`, real time): a row without labels.
+    pub fn record_unavailable(&mut self, seq: u64, source: MaskSource) {
+        self.send(Job {
+            seq,
+            source: source.as_str(),
+            origin: shared_types::mask_flags::origin(shared_types::mask_flags::UNAVAILABLE),
+            save: false,
+            instances: 0,
+            labels: GrayImage::new(0, 0),
+        });
+    }
+
+    fn send(&mut self, job: Job) {
         if let Some(tx) = &self.tx {
             match tx.try_send(job) {
                 Ok(()) => {}
@@ -196,6 +217,9 @@ pub struct MaskRow {
     pub masked_px: u64,
     /// Whether `masks/<seq>.png` was written (`run.save_masks`).
     pub saved: bool,
+    /// Where they were made: local, remote or fallback (`local` in a
+    /// masks.csv of an older version).
+    pub origin: String,
 }
 
 /// Reads `masks.csv` (the last row of each seq wins: a replayed frame's
@@ -206,10 +230,12 @@ pub fn read_rows(run_dir: &Path) -> Result<Vec<MaskRow>> {
         return Ok(Vec::new());
     };
     let mut rows = std::collections::BTreeMap::new();
+    // Older versions wrote no origin column.
+    let columns = text.lines().next().map_or(0, |h| h.split(',').count());
     for (i, line) in text.lines().enumerate().skip(1) {
         let f: Vec<&str> = line.split(',').collect();
         // A killed supervisor may leave a half-written last line.
-        if f.len() != 5 {
+        if f.len() != columns || columns < 5 {
             continue;
         }
         let parse = |k: usize| {
@@ -223,10 +249,27 @@ pub fn read_rows(run_dir: &Path) -> Result<Vec<MaskRow>> {
             instances: parse(2)? as u32,
             masked_px: parse(3)?,
             saved: !f[4].is_empty(),
+            origin: f.get(5).unwrap_or(&"local").to_string(),
         };
         rows.insert(row.seq, row);
     }
     Ok(rows.into_values().collect())
+}
+
+/// How many sets of `source`'s masks each origin made (every row of
+/// `masks.csv`, replays included): local, remote, fallback, unavailable.
+pub fn origin_counts(run_dir: &Path, source: &str) -> std::collections::BTreeMap<String, u64> {
+    let mut counts = std::collections::BTreeMap::new();
+    let Ok(text) = std::fs::read_to_string(run_dir.join(MASKS_CSV)) else {
+        return counts;
+    };
+    for line in text.lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        if f.len() == 6 && f[1] == source {
+            *counts.entry(f[5].to_string()).or_insert(0) += 1;
+        }
+    }
+    counts
 }
 
 /// Per-person IoU of one set of masks against the ground truth.
@@ -276,7 +319,7 @@ pub fn read_ious(run_dir: &Path) -> Result<std::collections::BTreeMap<u64, Vec<P
 #[cfg(test)]
 mod tests {
     use super::*;
-    use shared_types::{MaskSource, MasksHeader};
+    use shared_types::MasksHeader;
 
     fn header(seq: u64, source: MaskSource) -> MasksHeader {
         MasksHeader {
@@ -299,7 +342,8 @@ mod tests {
         labels[5] = 1;
         labels[6] = 2;
         for seq in [3u64, 4] {
-            let h = header(seq, MaskSource::Propagator);
+            let mut h = header(seq, MaskSource::Propagator);
+            h.flags = shared_types::mask_flags::REMOTE;
             rec.record(&MasksView::new(&h, &labels).unwrap());
         }
         assert_eq!(rec.finish().unwrap(), 0);
@@ -313,6 +357,7 @@ mod tests {
                 instances: 2,
                 masked_px: 2,
                 saved: true,
+                origin: "remote".into(),
             }
         );
         let back = image::open(mask_file(&dir, 4)).unwrap().into_luma8();

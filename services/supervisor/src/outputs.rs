@@ -46,6 +46,9 @@ pub struct FrameRow {
     pub stamps: StageStamps,
     /// When the supervisor received the Track (end of the frame's path).
     pub track_received_ns: u64,
+    /// Where those masks were made: local, remote, fallback (the local
+    /// model standing in for a remote worker) or none.
+    pub mask_origin: String,
     /// Free text: why a frame was skipped or dropped.
     pub note: String,
 }
@@ -87,6 +90,9 @@ struct CsvRow {
     track_start_ns: u64,
     track_done_ns: u64,
     track_received_ns: u64,
+    /// Absent in frames.csv of older versions (a resumed run).
+    #[serde(default)]
+    mask_origin: String,
     note: String,
 }
 
@@ -94,7 +100,7 @@ struct CsvRow {
 const HEADER: &str = "seq,timestamp,state,route,mask_source,keyframe,next_keyframe,\
 tx,ty,tz,qx,qy,qz,qw,features,features_masked,features_moving,inliers,map_points,keyframes,\
 slam_extract_us,slam_mapping_us,capture_ns,published_ns,routed_ns,masks_start_ns,masks_done_ns,slam_received_ns,\
-track_start_ns,track_done_ns,track_received_ns,note";
+track_start_ns,track_done_ns,track_received_ns,mask_origin,note";
 
 impl From<&FrameRow> for CsvRow {
     fn from(r: &FrameRow) -> Self {
@@ -132,6 +138,7 @@ impl From<&FrameRow> for CsvRow {
             track_start_ns: s.track_start_ns,
             track_done_ns: s.track_done_ns,
             track_received_ns: r.track_received_ns,
+            mask_origin: r.mask_origin.clone(),
             // One frame, one line (a resumed run cuts a half-written last
             // line): line breaks in a note become spaces, commas are quoted.
             note: r.note.replace(['\n', '\r'], " "),
@@ -170,6 +177,7 @@ impl From<CsvRow> for FrameRow {
                 track_done_ns: c.track_done_ns,
             },
             track_received_ns: c.track_received_ns,
+            mask_origin: c.mask_origin,
             note: c.note,
         }
     }
@@ -321,6 +329,7 @@ mod tests {
             state: "ok".into(),
             route: "segment".into(),
             mask_source: "segmenter".into(),
+            mask_origin: "remote".into(),
             keyframe: true,
             pose: [1.0, 2.0, 3.0, 0.0, 0.0, 0.0, 1.0],
             stamps: StageStamps {

@@ -91,6 +91,29 @@ fn restarts_line(run_dir: &Path) -> Option<String> {
     })
 }
 
+/// With a remote segmenter: where its masks were made, and how many of its
+/// frames went without fresh segmenter masks; None for a local one.
+fn remote_line(run_dir: &Path, config: &PipelineConfig) -> Option<String> {
+    if config.services.segmenter.location != "remote" {
+        return None;
+    }
+    let counts = crate::mask_record::origin_counts(run_dir, "segmenter");
+    let n = |origin: &str| counts.get(origin).copied().unwrap_or(0);
+    Some(format!(
+        "Remote segmenter (run `{}`, fallback {}): {} sets of masks made remotely, {} by the local fallback; {} segmenter frames went without fresh segmenter masks (no worker answered){}",
+        config.remote.run,
+        config.services.segmenter.fallback,
+        n("remote"),
+        n("fallback"),
+        n("unavailable"),
+        if config.run.mode.is_realtime() {
+            ": the propagator carried the masks"
+        } else {
+            ": tracked unmasked"
+        }
+    ))
+}
+
 /// Writes the report of the run in `run_dir`; `rows` are its frames,
 /// `problems` what degraded or failed the run (the report opens with them).
 pub fn write(
@@ -302,7 +325,10 @@ pub fn write(
             ""
         }
     )?;
-    if let Some(line) = restarts_line(run_dir) {
+    for line in [restarts_line(run_dir), remote_line(run_dir, config)]
+        .iter()
+        .flatten()
+    {
         writeln!(md, "{line}\n")?;
     }
     writeln!(md, "## Trajectory\n")?;

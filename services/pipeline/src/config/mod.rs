@@ -14,10 +14,12 @@ use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 mod bridge;
+mod remote;
 mod services;
 mod source;
 
 pub use bridge::BridgeConfig;
+pub use remote::{check_run_name, RemoteConfig};
 pub use services::*;
 pub use source::{Ros2SourceConfig, SourceConfig, SourceKind, V4l2Config};
 
@@ -40,6 +42,8 @@ pub struct PipelineConfig {
     pub camera: CameraConfig,
     #[serde(default)]
     pub bridge: BridgeConfig,
+    #[serde(default)]
+    pub remote: RemoteConfig,
 }
 
 /// Pinhole intrinsics and radial-tangential distortion of the RGB camera
@@ -351,6 +355,8 @@ impl PipelineConfig {
         }
         in_range("run.speed", r.speed, 0.01, 100.0, "a playback speed factor")?;
         self.bridge.validate()?;
+        self.remote
+            .validate(self.services.segmenter.location == "remote")?;
         in_range(
             "source.max_time_diff",
             self.source.max_time_diff,

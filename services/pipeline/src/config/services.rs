@@ -89,6 +89,14 @@ pub struct CameraReaderConfig {
 pub struct SegmenterConfig {
     /// Replace the service's program (the standard arguments are appended).
     pub command: Vec<String>,
+    /// Where the model runs: "local" (this machine) or "remote" (a worker
+    /// on another machine over Zenoh, `[remote]`; this machine runs the
+    /// link in the segmenter's place).
+    pub location: String,
+    /// `location = "remote"`, while no worker answers: "local" (this
+    /// machine's model makes the masks) or "none" (real time: the
+    /// propagator carries masks; lockstep: the frame goes unmasked).
+    pub fallback: String,
     /// `yolov8-seg`, `maskrcnn`, `ground-truth` or `none`.
     pub backend: String,
     /// `none`: simulated work per frame (milliseconds).
@@ -130,6 +138,8 @@ impl Default for SegmenterConfig {
     fn default() -> Self {
         Self {
             command: Vec::new(),
+            location: "local".into(),
+            fallback: "local".into(),
             backend: "yolov8-seg".into(),
             work_ms: 0,
             model: String::new(),
@@ -334,6 +344,18 @@ impl ServicesConfig {
 
     /// Checks every service's values for range and sense.
     pub fn validate(&self) -> Result<(), String> {
+        if !matches!(self.segmenter.location.as_str(), "local" | "remote") {
+            return Err(format!(
+                "key `services.segmenter.location`: '{}' is not one of local, remote",
+                self.segmenter.location
+            ));
+        }
+        if !matches!(self.segmenter.fallback.as_str(), "local" | "none") {
+            return Err(format!(
+                "key `services.segmenter.fallback`: '{}' is not one of local, none",
+                self.segmenter.fallback
+            ));
+        }
         let fractions = [
             ("segmenter.score_threshold", self.segmenter.score_threshold),
             (

@@ -105,6 +105,7 @@ impl Supervisor {
                 .map_or("none", |r| r.as_str())
                 .into(),
             mask_source: "none".into(),
+            mask_origin: "none".into(),
             note: d.why,
             ..Default::default()
         })
@@ -140,6 +141,7 @@ impl Supervisor {
                 .unwrap_or(MaskSource::None)
                 .as_str()
                 .to_string(),
+            mask_origin: mask_origin(&t).into(),
             keyframe: t.keyframe_inserted != 0,
             next_keyframe: t.next_needs_keyframe != 0,
             pose: t.pose,
@@ -312,6 +314,10 @@ impl Supervisor {
         while let Some(sample) = masks.next_sample()? {
             let h = *sample.user_header();
             if h.has(mask_flags::GONE) {
+                if h.has(mask_flags::UNAVAILABLE) {
+                    let source = MaskSource::from_u32(h.source).unwrap_or(MaskSource::None);
+                    recorder.record_unavailable(h.seq, source);
+                }
                 self.on_masks_gone(&h)?;
                 continue;
             }
@@ -699,6 +705,15 @@ fn finish_outputs(
         degraded,
         latency_table: table,
     })
+}
+
+/// Where the masks a frame was tracked with were made (`mask_flags::origin`).
+fn mask_origin(t: &Track) -> &'static str {
+    if t.mask_source == MaskSource::None as u32 {
+        "none"
+    } else {
+        mask_flags::origin(t.mask_flags)
+    }
 }
 
 #[cfg(test)]

@@ -1,0 +1,17 @@
+//! Mask workers on another machine over Zenoh (README "Workers on another
+//! machine").
+//!
+//! - [`wire`]: what crosses the network (frames and masks, encoded) and
+//!   its checked decoding.
+//! - [`session`]: the Zenoh session of either end and the keys they meet on.
+//! - [`link`]: the robot's end, a `MaskModel` in the segmenter's place
+//!   (`mask-link`), with the local fallback.
+//! - [`serve`]: the other machine's end (`mask-worker`, run by
+//!   `dynslam worker segmenter`).
+
+#![deny(missing_docs)]
+
+pub mod link;
+pub mod serve;
+pub mod session;
+pub mod wire;

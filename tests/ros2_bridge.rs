@@ -700,10 +700,10 @@ fn killing_the_bridge_ten_times_loses_no_frame_and_its_topics_go_on() {
     );
 }
 
-/// Zenoh is linked by the bridge alone: the other services' dependency
-/// trees stay as they were.
+/// Zenoh is linked by the bridge and the remote workers' crate alone: the
+/// other services' dependency trees stay as they were.
 #[test]
-fn zenoh_is_in_the_bridges_dependency_tree_only() {
+fn zenoh_is_in_the_bridges_and_remote_workers_dependency_trees_only() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let tree = |package: &str| {
         let out = Command::new(env!("CARGO"))
@@ -742,7 +742,9 @@ fn zenoh_is_in_the_bridges_dependency_tree_only() {
             "{package} depends on zenoh"
         );
     }
-    assert!(tree("bridge").lines().any(|l| l.starts_with("zenoh ")));
+    for package in ["bridge", "remote"] {
+        assert!(tree(package).lines().any(|l| l.starts_with("zenoh ")));
+    }
 }
 
 /// REP-105 with the robot's own odometry: a robot (rosbags serialising)

@@ -166,6 +166,11 @@ bench-realtime-people *args="": build setup synth-people
     ./target/release/realtime-bench "{{people_front}}" --out bench-results/realtime_people_across.json {{args}}
     ./target/release/realtime-bench "{{people_mixed_front}}" --out bench-results/realtime_people_mixed.json {{args}}
 
+# Remote segmenter over Zenoh: keyframe round trip (loopback and a 20 ms-each-way relay; JPEG and PNG; p50/p99 ms, KB per keyframe; writes bench-results/remote.json), then real time at 30 fps local vs remote (loopback, relay) alternated, and the robot pinned to one core with the 480 px segmenter local vs remote on the other core (bench-results/remote_realtime.json).
+bench-remote *args="": build setup
+    ./target/release/remote-bench
+    python3 tools/bench-remote.py {{args}}
+
 # Real time with the ROS 2 bridge off and on, alternated in one invocation (30 fps, unloaded and with 2 busy processes; a subscriber on a local Zenoh router counts what arrives; writes bench-results/realtime_bridge.json).
 bench-realtime-bridge *args="": build setup ros2py
     #!/usr/bin/env bash

@@ -8,13 +8,15 @@
 mod common;
 use common::*;
 
-use std::io::{Read, Write};
-use std::net::{Shutdown, SocketAddr, TcpListener, TcpStream};
+use std::net::SocketAddr;
+use std::os::fd::AsRawFd;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
-use std::sync::{mpsc, Arc, Mutex};
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::Mutex;
 use std::time::{Duration, Instant};
+
+use remote::relay::Relay;
 
 /// One pipeline and worker at a time: they share two cores.
 fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
@@ -126,92 +128,20 @@ impl Drop for Net {
     }
 }
 
-/// A TCP relay in the robot's namespace: listens on its loopback and
-/// forwards to `target`, every chunk delayed `delay` each way.
-struct Relay {
-    port: u16,
-    stop: Arc<AtomicBool>,
-}
-
-impl Relay {
-    fn start(ns: &str, target: SocketAddr, delay: Duration) -> Self {
-        let stop = Arc::new(AtomicBool::new(false));
-        let (tx, rx) = mpsc::channel();
-        let ns_path = format!("/var/run/netns/{ns}");
-        let halt = stop.clone();
-        std::thread::spawn(move || {
-            // This thread (and the sockets it makes) enters the namespace.
-            let f = std::fs::File::open(&ns_path).unwrap();
-            let rc =
-                unsafe { libc::setns(std::os::fd::AsRawFd::as_raw_fd(&f), libc::CLONE_NEWNET) };
-            assert_eq!(rc, 0, "setns {ns_path}");
-            let listener = TcpListener::bind("127.0.0.1:0").unwrap();
-            listener.set_nonblocking(true).unwrap();
-            tx.send(listener.local_addr().unwrap().port()).unwrap();
-            while !halt.load(Ordering::Relaxed) {
-                match listener.accept() {
-                    Ok((client, _)) => {
-                        client.set_nonblocking(false).unwrap();
-                        let Ok(server) =
-                            TcpStream::connect_timeout(&target, Duration::from_secs(2))
-                        else {
-                            continue; // the worker is not there (yet): the client retries
-                        };
-                        for (from, to) in [
-                            (client.try_clone().unwrap(), server.try_clone().unwrap()),
-                            (server, client),
-                        ] {
-                            pump(from, to, delay);
-                        }
-                    }
-                    Err(_) => std::thread::sleep(Duration::from_millis(5)),
-                }
-            }
-        });
-        let port = rx.recv().unwrap();
-        Self { port, stop }
-    }
-
-    fn endpoint(&self) -> String {
-        format!("tcp/127.0.0.1:{}", self.port)
-    }
-}
-
-impl Drop for Relay {
-    fn drop(&mut self) {
-        self.stop.store(true, Ordering::Relaxed);
-    }
-}
-
-/// Copies `from` to `to`, each chunk `delay` after it was read.
-fn pump(mut from: TcpStream, mut to: TcpStream, delay: Duration) {
-    let (tx, rx) = mpsc::channel::<(Instant, Vec<u8>)>();
+/// The crate's delaying TCP relay, made in the robot's namespace (on its
+/// loopback): a thread enters the namespace and starts it there, so its
+/// sockets and threads live in it.
+fn relay_in(ns: &str, target: SocketAddr, delay: Duration) -> Relay {
+    let ns_path = format!("/var/run/netns/{ns}");
     std::thread::spawn(move || {
-        let mut buf = vec![0u8; 64 * 1024];
-        loop {
-            match from.read(&mut buf) {
-                Ok(0) | Err(_) => break,
-                Ok(n) => {
-                    if tx
-                        .send((Instant::now() + delay, buf[..n].to_vec()))
-                        .is_err()
-                    {
-                        break;
-                    }
-                }
-            }
-        }
-        let _ = from.shutdown(Shutdown::Both);
-    });
-    std::thread::spawn(move || {
-        for (due, bytes) in rx {
-            std::thread::sleep(due.saturating_duration_since(Instant::now()));
-            if to.write_all(&bytes).is_err() {
-                break;
-            }
-        }
-        let _ = to.shutdown(Shutdown::Both);
-    });
+        let f = std::fs::File::open(&ns_path).unwrap();
+        // SAFETY: setns on a namespace file this thread opened.
+        let rc = unsafe { libc::setns(f.as_raw_fd(), libc::CLONE_NEWNET) };
+        assert_eq!(rc, 0, "setns {ns_path}");
+        Relay::start("127.0.0.1:0".parse().unwrap(), target, delay).unwrap()
+    })
+    .join()
+    .unwrap()
 }
 
 fn ort_line() -> String {
@@ -298,6 +228,12 @@ fn start_robot(
         .unwrap()
 }
 
+/// Kills a worker and reaps it.
+fn stop(mut worker: Child) {
+    let _ = worker.kill();
+    let _ = worker.wait();
+}
+
 fn finish(mut robot: Child, dir: &Path, id: &str) -> (PathBuf, String) {
     let status = robot.wait().unwrap();
     let log = std::fs::read_to_string(dir.join(format!("{id}.log"))).unwrap();
@@ -339,8 +275,7 @@ fn count(summary: &str, what: &str) -> u64 {
         .unwrap_or_else(|| panic!("{what}: {summary}"))];
     before
         .split(|c: char| !c.is_ascii_digit())
-        .filter(|s| !s.is_empty())
-        .next_back()
+        .rfind(|s| !s.is_empty())
         .unwrap()
         .parse()
         .unwrap()
@@ -360,10 +295,10 @@ fn keyframe_masks_come_from_the_remote_worker_and_equal_the_local_ones() {
     );
     let local = run_local(&dir, &local_config);
     let net = Net::new();
-    let mut worker = start_worker(&net, &dir, "worker.log");
+    let worker = start_worker(&net, &dir, "worker.log");
     wait_serving(&dir, "worker.log");
     let target: SocketAddr = format!("{}:{WORKER_PORT}", net.worker_ip).parse().unwrap();
-    let relay = Relay::start(&net.robot, target, Duration::from_millis(20));
+    let relay = relay_in(&net.robot, target, Duration::from_millis(20));
     let config = robot_config(
         &dir,
         &relay.endpoint(),
@@ -372,7 +307,7 @@ fn keyframe_masks_come_from_the_remote_worker_and_equal_the_local_ones() {
     );
     let robot = start_robot(&net, None, &config, &dir, "remote", &["--limit", "60"]);
     let (run_dir, log) = finish(robot, &dir, "remote");
-    let _ = worker.kill();
+    stop(worker);
 
     let remote = mask_rows(&run_dir);
     let segmented: Vec<_> = remote.iter().filter(|r| r.1 == "segmenter").collect();
@@ -433,10 +368,10 @@ fn a_link_down_for_two_seconds_loses_no_frame_and_the_masks_resume() {
     let _serial = one_at_a_time();
     let dir = scratch("remote-linkdown");
     let net = Net::new();
-    let mut worker = start_worker(&net, &dir, "worker.log");
+    let worker = start_worker(&net, &dir, "worker.log");
     wait_serving(&dir, "worker.log");
     let target: SocketAddr = format!("{}:{WORKER_PORT}", net.worker_ip).parse().unwrap();
-    let relay = Relay::start(&net.robot, target, Duration::from_millis(20));
+    let relay = relay_in(&net.robot, target, Duration::from_millis(20));
     let config = robot_config(
         &dir,
         &relay.endpoint(),
@@ -468,7 +403,7 @@ fn a_link_down_for_two_seconds_loses_no_frame_and_the_masks_resume() {
     net.set_link(true);
     let up_at = recorded() as u64;
     let (run_dir, log) = finish(robot, &dir, "linkdown");
-    let _ = worker.kill();
+    stop(worker);
 
     let rows = read_rows(&run_dir);
     let seqs: Vec<u64> = rows.iter().map(|r| r["seq"].parse().unwrap()).collect();
@@ -533,7 +468,7 @@ fn the_remote_worker_killed_ten_times_loses_no_frame() {
     }
     wait_serving(&dir, "worker-10.log");
     let (run_dir, log) = finish(robot, &dir, "kills");
-    let _ = worker.kill();
+    stop(worker);
 
     let rows = read_rows(&run_dir);
     assert_eq!(rows.len(), 300, "every frame of the shared sequence");
@@ -644,7 +579,7 @@ fn bad_worker_arguments_and_remote_settings_are_named() {
         ),
         (
             "[services.segmenter]\nlocation = \"remote\"\n[remote]\nrun = \"r\"\nencoding = \"webp\"\n",
-            "key `remote.encoding`: 'webp' is not one of png, jpeg",
+            "key `remote.encoding`: 'webp' is not one of jpeg, png, raw",
         ),
     ];
     for (toml, expected) in cases {
@@ -662,4 +597,91 @@ fn bad_worker_arguments_and_remote_settings_are_named() {
             "{expected}: {err}"
         );
     }
+}
+
+/// Mutual TLS with the shipped examples (configs/zenoh/robot-mtls.json5 and
+/// worker-mtls.json5, test certificates in place): the worker's masks come
+/// through; a worker whose certificate the CA signed but with another
+/// common name is refused by the robot's access control, so the robot
+/// never hears it (loopback: the examples name localhost).
+#[test]
+fn mutual_tls_with_the_shipped_examples_admits_the_worker_and_not_an_intruder() {
+    let _serial = one_at_a_time();
+    let dir = scratch("remote-tls");
+    test_certificates(
+        &dir,
+        &[
+            ("robot", "localhost", "DNS:localhost,IP:127.0.0.1"),
+            ("worker", "dynslam-worker", "DNS:dynslam-worker"),
+            ("intruder", "intruder", "DNS:intruder"),
+        ],
+    );
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let robot_zenoh = shipped_zenoh_config("robot-mtls.json5", &dir, port);
+    let worker_zenoh = shipped_zenoh_config("worker-mtls.json5", &dir, port);
+    let intruder_zenoh = dir.join("intruder-mtls.json5");
+    std::fs::write(
+        &intruder_zenoh,
+        std::fs::read_to_string(&worker_zenoh)
+            .unwrap()
+            .replace("worker.key", "intruder.key")
+            .replace("worker.pem", "intruder.pem"),
+    )
+    .unwrap();
+    let config = write_config(
+        &dir,
+        &format!(
+            "[services.segmenter]\nlocation = \"remote\"\nfallback = \"none\"\ninput_size = 320\n\
+             [remote]\nrun = \"{RUN}\"\nzenoh_config = \"{}\"\nstartup_wait_s = 4\n\
+             [supervisor]\nrestart_limit = 1\n{}",
+            robot_zenoh.display(),
+            ort_line()
+        ),
+    );
+    let run = |id: &str, worker_zenoh: &Path| {
+        let out = std::fs::File::create(dir.join(format!("{id}-worker.log"))).unwrap();
+        let worker = Command::new(dynslam())
+            .args(["worker", "segmenter", "--run", RUN, "--zenoh-config"])
+            .arg(worker_zenoh)
+            .arg("--config")
+            .arg(worker_config(&dir))
+            .stdout(Stdio::null())
+            .stderr(out)
+            .spawn()
+            .unwrap();
+        let result = common::run(
+            &shared_tum(),
+            &config,
+            &dir.join("runs"),
+            id,
+            &["--limit", "20"],
+        );
+        stop(worker);
+        result
+    };
+    let admitted = run("tls-worker", &worker_zenoh);
+    assert!(admitted.success(), "{}", admitted.stderr());
+    assert!(mask_rows(&admitted.run_dir)
+        .iter()
+        .any(|r| r.1 == "segmenter" && r.4 == "remote"));
+
+    let refused = run("tls-intruder", &intruder_zenoh);
+    assert_eq!(
+        refused.output.status.code(),
+        Some(3),
+        "{}",
+        refused.stderr()
+    );
+    assert!(
+        refused
+            .stderr()
+            .contains("no remote segmenter worker for run 'robot1' appeared within 4 s"),
+        "{}",
+        refused.stderr()
+    );
+    assert!(!mask_rows(&refused.run_dir).iter().any(|r| r.4 == "remote"));
 }

@@ -843,51 +843,13 @@ fn with_the_robots_odometry_the_slam_owns_map_to_odom_and_drops_hostile_samples(
 /// Makes a CA and two certificates it signs (the router's for "localhost",
 /// the bridge's with common name "dynslam-bridge"), with openssl.
 fn test_certificates(dir: &Path) {
-    let sh = |script: &str| {
-        let out = Command::new("bash")
-            .arg("-euc")
-            .arg(script)
-            .current_dir(dir)
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-    };
-    sh(
-        "openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes \
-        -keyout ca.key -out ca.pem -days 2 -subj '/CN=dynslam test CA' 2>/dev/null",
+    common::test_certificates(
+        dir,
+        &[
+            ("router", "localhost", "DNS:localhost,IP:127.0.0.1"),
+            ("bridge", "dynslam-bridge", "DNS:dynslam-bridge"),
+        ],
     );
-    for (name, cn, san) in [
-        ("router", "localhost", "DNS:localhost,IP:127.0.0.1"),
-        ("bridge", "dynslam-bridge", "DNS:dynslam-bridge"),
-    ] {
-        sh(&format!(
-            "openssl req -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes \
-             -keyout {name}.key -out {name}.csr -subj '/CN={cn}' 2>/dev/null
-             printf 'subjectAltName={san}\\nbasicConstraints=CA:FALSE\\n' > {name}.ext
-             openssl x509 -req -in {name}.csr -CA ca.pem -CAkey ca.key -CAcreateserial \
-             -out {name}.pem -days 2 -extfile {name}.ext 2>/dev/null"
-        ));
-    }
-}
-
-/// The shipped Zenoh examples (configs/zenoh/*-mtls.json5) with the test's
-/// certificates and port.
-fn shipped_zenoh_config(name: &str, dir: &Path, port: u16) -> PathBuf {
-    let text = std::fs::read_to_string(
-        Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("configs/zenoh")
-            .join(name),
-    )
-    .unwrap()
-    .replace("/etc/dynslam/tls/", &format!("{}/", dir.display()))
-    .replace("tls/localhost:7447", &format!("tls/localhost:{port}"));
-    let out = dir.join(name);
-    std::fs::write(&out, text).unwrap();
-    out
 }
 
 /// The bridge over mutual TLS with the router's access control, on

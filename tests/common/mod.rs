@@ -223,3 +223,51 @@ pub fn depth_file(tum: &Path, i: usize) -> PathBuf {
     let line = text.lines().filter(|l| !l.starts_with('#')).nth(i).unwrap();
     tum.join(line.split_whitespace().nth(1).unwrap())
 }
+
+/// Makes a CA (`ca.pem`) in `dir` and a certificate it signs for each
+/// `(name, common name, subjectAltName)`: `name.key`, `name.pem`, with
+/// openssl (the TLS tests of the bridge and the remote workers).
+pub fn test_certificates(dir: &Path, certs: &[(&str, &str, &str)]) {
+    let sh = |script: &str| {
+        let out = Command::new("bash")
+            .arg("-euc")
+            .arg(script)
+            .current_dir(dir)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    };
+    sh(
+        "openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes \
+        -keyout ca.key -out ca.pem -days 2 -subj '/CN=dynslam test CA' 2>/dev/null",
+    );
+    for (name, cn, san) in certs {
+        sh(&format!(
+            "openssl req -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes \
+             -keyout {name}.key -out {name}.csr -subj '/CN={cn}' 2>/dev/null
+             printf 'subjectAltName={san}\\nbasicConstraints=CA:FALSE\\n' > {name}.ext
+             openssl x509 -req -in {name}.csr -CA ca.pem -CAkey ca.key -CAcreateserial \
+             -out {name}.pem -days 2 -extfile {name}.ext 2>/dev/null"
+        ));
+    }
+}
+
+/// A shipped Zenoh example (`configs/zenoh/NAME`) with the test's
+/// certificates (in `dir`) and port in place of the example's.
+pub fn shipped_zenoh_config(name: &str, dir: &Path, port: u16) -> PathBuf {
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("configs/zenoh")
+            .join(name),
+    )
+    .unwrap()
+    .replace("/etc/dynslam/tls/", &format!("{}/", dir.display()))
+    .replace("tls/localhost:7447", &format!("tls/localhost:{port}"));
+    let out = dir.join(name);
+    std::fs::write(&out, text).unwrap();
+    out
+}

@@ -8,10 +8,13 @@
 //!   (`mask-link`), with the local fallback.
 //! - [`serve`]: the other machine's end (`mask-worker`, run by
 //!   `dynslam worker segmenter`).
+//! - [`relay`]: a TCP relay that delays each byte (network latency for the
+//!   tests and `just bench-remote`).
 
 #![deny(missing_docs)]
 
 pub mod link;
+pub mod relay;
 pub mod serve;
 pub mod session;
 pub mod wire;

@@ -24,7 +24,7 @@ use zenoh::sample::SampleKind;
 use zenoh::{Session, Wait};
 
 use crate::session::{frames_key, open, workers_key, Endpoints};
-use crate::wire::{decode_reply, encode_request, ColourEncoding};
+use crate::wire::{decode_reply, encode_request, ImageEncoding};
 
 /// How often a waiting frame looks whether its worker is still alive.
 const LIVELINESS_POLL: Duration = Duration::from_millis(10);
@@ -82,7 +82,7 @@ pub struct RemoteSegmenter {
     workers: Arc<Mutex<BTreeSet<String>>>,
     _liveliness: zenoh::pubsub::Subscriber<()>,
     fallback: Option<Box<dyn MaskModel>>,
-    encoding: ColourEncoding,
+    encoding: ImageEncoding,
     with_depth: bool,
     timeout: Duration,
     /// `mask_flags` of the masks made last.
@@ -145,7 +145,7 @@ impl RemoteSegmenter {
             workers,
             _liveliness: liveliness,
             fallback,
-            encoding: ColourEncoding::from_config(&r.encoding, r.jpeg_quality),
+            encoding: ImageEncoding::from_config(&r.encoding, r.jpeg_quality),
             with_depth: r.depth,
             timeout: Duration::from_millis(r.timeout_ms),
             origin: 0,

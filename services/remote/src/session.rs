@@ -71,6 +71,12 @@ pub fn session_config(e: &Endpoints) -> Result<zenoh::Config> {
         .with_context(|| format!("listen {:?}", e.listen))?;
     // Only the endpoints named: nothing found by multicast on a robot's LAN.
     set(&mut c, "scouting/multicast/enabled", "false".into())?;
+    // Nothing is scouted, so the open need not wait for scouted peers.
+    set(
+        &mut c,
+        "open/return_conditions/connect_scouted",
+        "false".into(),
+    )?;
     set(
         &mut c,
         "transport/link/rx/max_message_size",

@@ -1,6 +1,6 @@
-//! What crosses the network: a routed frame (colour PNG or JPEG, depth as
-//! 16-bit PNG, the masks before it) and the masks made for it (labels as
-//! PNG), each one postcard message. Decoding trusts nothing: a message of
+//! What crosses the network: a routed frame (colour as JPEG, PNG or raw,
+//! depth as 16-bit PNG or raw, the masks before it) and the masks made for
+//! it (labels as PNG), each one postcard message. Decoding trusts nothing: a message of
 //! the wrong run, a truncated or hostile one (sizes that do not agree,
 //! images larger than announced, more instances than a frame holds) is an
 //! error naming what is wrong, never a panic or an unbounded allocation.
@@ -19,21 +19,95 @@ pub const VERSION: u16 = 1;
 /// The largest frame side accepted from the network (pixels).
 pub const MAX_SIDE: u32 = 4096;
 
-/// How a frame's colour travels.
+/// How a frame's images travel.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub enum ColourEncoding {
+pub enum ImageEncoding {
+    /// The pixels as they are (depth little-endian): no CPU on either end,
+    /// 1.5 MB a 640x480 frame with depth (a wired link).
+    Raw,
     /// Lossless: the worker segments the very pixels the robot has.
     Png,
     /// Lossy, with its quality (1..=100): a tenth of PNG's bytes.
     Jpeg(u8),
 }
 
-impl ColourEncoding {
+impl ImageEncoding {
     /// From `[remote] encoding` and `jpeg_quality`.
     pub fn from_config(encoding: &str, jpeg_quality: u8) -> Self {
         match encoding {
             "jpeg" => Self::Jpeg(jpeg_quality),
+            "raw" => Self::Raw,
             _ => Self::Png,
+        }
+    }
+
+    /// How depth travels with colour of this encoding: raw with raw,
+    /// else 16-bit PNG (lossless: depth must not be blurred).
+    pub fn for_depth(self) -> Self {
+        match self {
+            Self::Raw => Self::Raw,
+            _ => Self::Png,
+        }
+    }
+}
+
+/// Bytes that serialise as one blob (postcard: length and the bytes, one
+/// copy), not element by element.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct Blob(pub Vec<u8>);
+
+impl Serialize for Blob {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        s.serialize_bytes(&self.0)
+    }
+}
+
+impl<'de> Deserialize<'de> for Blob {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        struct V;
+        impl serde::de::Visitor<'_> for V {
+            type Value = Blob;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("bytes")
+            }
+            fn visit_bytes<E: serde::de::Error>(self, v: &[u8]) -> std::result::Result<Blob, E> {
+                Ok(Blob(v.to_vec()))
+            }
+            fn visit_byte_buf<E: serde::de::Error>(
+                self,
+                v: Vec<u8>,
+            ) -> std::result::Result<Blob, E> {
+                Ok(Blob(v))
+            }
+        }
+        d.deserialize_byte_buf(V)
+    }
+}
+
+/// What an image plane holds, as the services keep it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Plane {
+    /// RGB8.
+    Rgb8,
+    /// u16 depth, native-endian in memory.
+    Depth16,
+    /// u8 labels.
+    Labels8,
+}
+
+impl Plane {
+    fn bytes_per_pixel(self) -> usize {
+        match self {
+            Self::Rgb8 => 3,
+            Self::Depth16 => 2,
+            Self::Labels8 => 1,
+        }
+    }
+    fn colour_type(self) -> ExtendedColorType {
+        match self {
+            Self::Rgb8 => ExtendedColorType::Rgb8,
+            Self::Depth16 => ExtendedColorType::L16,
+            Self::Labels8 => ExtendedColorType::L8,
         }
     }
 }
@@ -83,7 +157,7 @@ pub struct WireMasks {
     /// Instances; label `i + 1` is instance `i`.
     pub instances: Vec<WireInstance>,
     /// 8-bit grey PNG of the labels.
-    pub labels_png: Vec<u8>,
+    pub labels_png: Blob,
 }
 
 /// A routed frame for a remote worker.
@@ -103,12 +177,12 @@ pub struct FrameRequest {
     pub height: u32,
     /// Depth units per metre.
     pub depth_scale: f32,
-    /// How `colour` is encoded.
-    pub encoding: ColourEncoding,
+    /// How `colour` is encoded (depth: [`ImageEncoding::for_depth`]).
+    pub encoding: ImageEncoding,
     /// The RGB image.
-    pub colour: Vec<u8>,
-    /// The depth image as 16-bit grey PNG, when sent.
-    pub depth_png: Option<Vec<u8>>,
+    pub colour: Blob,
+    /// The depth image, when sent.
+    pub depth: Option<Blob>,
     /// The newest masks before this frame (weak detections that continue
     /// one of their objects are kept).
     pub previous: Option<WireMasks>,
@@ -146,18 +220,18 @@ pub fn encode_request(
     run: &str,
     frame: &FrameView,
     previous: Option<&MasksView>,
-    encoding: ColourEncoding,
+    encoding: ImageEncoding,
     with_depth: bool,
 ) -> Result<Vec<u8>> {
     let (w, h) = (frame.header.width, frame.header.height);
-    let colour = encode_image(frame.rgb, w, h, ExtendedColorType::Rgb8, encoding)?;
-    let depth_png = match frame.depth.filter(|_| with_depth) {
-        Some(raw) => Some(encode_image(
+    let colour = encode_plane(frame.rgb, w, h, Plane::Rgb8, encoding)?;
+    let depth = match frame.depth.filter(|_| with_depth) {
+        Some(raw) => Some(encode_plane(
             raw,
             w,
             h,
-            ExtendedColorType::L16,
-            ColourEncoding::Png,
+            Plane::Depth16,
+            encoding.for_depth(),
         )?),
         None => None,
     };
@@ -175,7 +249,7 @@ pub fn encode_request(
         depth_scale: frame.header.depth_scale,
         encoding,
         colour,
-        depth_png,
+        depth,
         previous,
     };
     postcard::to_stdvec(&request).context("cannot encode the frame request")
@@ -187,12 +261,12 @@ pub fn encode_masks(header: &MasksHeader, labels: &[u8]) -> Result<WireMasks> {
         seq: header.seq,
         source: header.source,
         instances: header.instances().iter().map(WireInstance::from).collect(),
-        labels_png: encode_image(
+        labels_png: encode_plane(
             labels,
             header.width,
             header.height,
-            ExtendedColorType::L8,
-            ColourEncoding::Png,
+            Plane::Labels8,
+            ImageEncoding::Png,
         )?,
     })
 }
@@ -257,36 +331,14 @@ pub fn decode_request(bytes: &[u8], run: &str) -> Result<DecodedFrame> {
         r.depth_scale
     );
     let (w, h) = (r.width, r.height);
-    let format = match r.encoding {
-        ColourEncoding::Png => ImageFormat::Png,
-        ColourEncoding::Jpeg(_) => ImageFormat::Jpeg,
-    };
-    let rgb = match decode_image(&r.colour, format, w, h)? {
-        DynamicImage::ImageRgb8(img) => img.into_raw(),
-        other => bail!(
-            "frame {}: colour is {:?}, not 8-bit RGB",
-            r.seq,
-            other.color()
-        ),
-    };
-    let mut payload = rgb;
-    let has_depth = if let Some(png) = &r.depth_png {
-        match decode_image(png, ImageFormat::Png, w, h)
-            .with_context(|| format!("frame {} depth", r.seq))?
-        {
-            DynamicImage::ImageLuma16(img) => {
-                payload.extend(img.into_raw().iter().flat_map(|v| v.to_ne_bytes()));
-            }
-            other => bail!(
-                "frame {}: depth is {:?}, not 16-bit grey",
-                r.seq,
-                other.color()
-            ),
-        }
-        true
-    } else {
-        false
-    };
+    let mut payload = decode_plane(&r.colour, r.encoding, w, h, Plane::Rgb8)
+        .with_context(|| format!("frame {} colour", r.seq))?;
+    if let Some(depth) = &r.depth {
+        let raw = decode_plane(depth, r.encoding.for_depth(), w, h, Plane::Depth16)
+            .with_context(|| format!("frame {} depth", r.seq))?;
+        payload.extend(raw);
+    }
+    let has_depth = r.depth.is_some();
     let previous =
         match &r.previous {
             Some(m) => Some(decode_masks(m, w, h).with_context(|| {
@@ -370,10 +422,14 @@ fn decode_masks(m: &WireMasks, width: u32, height: u32) -> Result<(MasksHeader, 
         "mask source {} is not one of none, segmenter, propagator",
         m.source
     );
-    let labels = match decode_image(&m.labels_png, ImageFormat::Png, width, height)? {
-        DynamicImage::ImageLuma8(img) => img.into_raw(),
-        other => bail!("labels are {:?}, not 8-bit grey", other.color()),
-    };
+    let labels = decode_plane(
+        &m.labels_png,
+        ImageEncoding::Png,
+        width,
+        height,
+        Plane::Labels8,
+    )
+    .context("labels")?;
     let n = m.instances.len();
     if let Some(bad) = labels.iter().find(|&&l| l as usize > n) {
         bail!("label {bad} names no instance ({n} instances)");
@@ -400,38 +456,70 @@ fn check_size(width: u32, height: u32) -> Result<()> {
     Ok(())
 }
 
-fn encode_image(
+/// One image plane in `encoding` (depth goes little-endian when raw).
+fn encode_plane(
     raw: &[u8],
     width: u32,
     height: u32,
-    colour: ExtendedColorType,
-    encoding: ColourEncoding,
-) -> Result<Vec<u8>> {
+    plane: Plane,
+    encoding: ImageEncoding,
+) -> Result<Blob> {
+    let colour = plane.colour_type();
     let mut out = Vec::new();
     match encoding {
-        ColourEncoding::Png => image::codecs::png::PngEncoder::new_with_quality(
+        ImageEncoding::Raw if plane == Plane::Depth16 => {
+            out.extend(
+                raw.chunks_exact(2)
+                    .flat_map(|b| u16::from_ne_bytes([b[0], b[1]]).to_le_bytes()),
+            );
+            return Ok(Blob(out));
+        }
+        ImageEncoding::Raw => return Ok(Blob(raw.to_vec())),
+        ImageEncoding::Png => image::codecs::png::PngEncoder::new_with_quality(
             &mut out,
             image::codecs::png::CompressionType::Fast,
             image::codecs::png::FilterType::Sub,
         )
         .write_image(raw, width, height, colour),
-        ColourEncoding::Jpeg(q) => {
+        ImageEncoding::Jpeg(q) => {
             image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, q.clamp(1, 100))
                 .write_image(raw, width, height, colour)
         }
     }
     .with_context(|| format!("cannot encode a {width}x{height} {colour:?} image"))?;
-    Ok(out)
+    Ok(Blob(out))
 }
 
-/// Decodes an image that must be exactly `width` x `height`: the decoder
-/// is limited to that size (and its bytes) before it allocates anything.
-fn decode_image(
-    bytes: &[u8],
-    format: ImageFormat,
+/// One image plane that must be exactly `width` x `height` of `plane`'s
+/// kind, as the services keep it. A compressed one is decoded with the
+/// decoder limited to that size (and its bytes) before it allocates.
+fn decode_plane(
+    blob: &Blob,
+    encoding: ImageEncoding,
     width: u32,
     height: u32,
-) -> Result<DynamicImage> {
+    plane: Plane,
+) -> Result<Vec<u8>> {
+    let bytes = &blob.0;
+    let expected = width as usize * height as usize * plane.bytes_per_pixel();
+    let format = match encoding {
+        ImageEncoding::Raw => {
+            ensure!(
+                bytes.len() == expected,
+                "raw {plane:?} of {} bytes, the message says {width}x{height} ({expected} bytes)",
+                bytes.len()
+            );
+            if plane == Plane::Depth16 {
+                return Ok(bytes
+                    .chunks_exact(2)
+                    .flat_map(|b| u16::from_le_bytes([b[0], b[1]]).to_ne_bytes())
+                    .collect());
+            }
+            return Ok(bytes.clone());
+        }
+        ImageEncoding::Png => ImageFormat::Png,
+        ImageEncoding::Jpeg(_) => ImageFormat::Jpeg,
+    };
     let mut reader = ImageReader::with_format(Cursor::new(bytes), format);
     let mut limits = Limits::default();
     limits.max_image_width = Some(width);
@@ -449,7 +537,14 @@ fn decode_image(
         img.width(),
         img.height()
     );
-    Ok(img)
+    match (plane, img) {
+        (Plane::Rgb8, DynamicImage::ImageRgb8(i)) => Ok(i.into_raw()),
+        (Plane::Depth16, DynamicImage::ImageLuma16(i)) => {
+            Ok(i.into_raw().iter().flat_map(|v| v.to_ne_bytes()).collect())
+        }
+        (Plane::Labels8, DynamicImage::ImageLuma8(i)) => Ok(i.into_raw()),
+        (plane, other) => bail!("{:?} image where {plane:?} was expected", other.color()),
+    }
 }
 
 #[cfg(test)]
@@ -485,7 +580,7 @@ mod tests {
         (header, payload, masks, labels)
     }
 
-    fn request(encoding: ColourEncoding) -> Vec<u8> {
+    fn request(encoding: ImageEncoding) -> Vec<u8> {
         let (header, payload, masks, labels) = frame(16, 12);
         let view = FrameView::new(&header, &payload).unwrap();
         let previous = MasksView::new(&masks, &labels).unwrap();
@@ -495,7 +590,7 @@ mod tests {
     #[test]
     fn a_png_frame_arrives_exactly_as_it_left() {
         let (header, payload, masks, labels) = frame(16, 12);
-        let got = decode_request(&request(ColourEncoding::Png), RUN).unwrap();
+        let got = decode_request(&request(ImageEncoding::Png), RUN).unwrap();
         assert_eq!(got.payload, payload);
         assert_eq!(
             (got.header.seq, got.header.width, got.header.has_depth),
@@ -509,9 +604,16 @@ mod tests {
     }
 
     #[test]
+    fn a_raw_frame_arrives_exactly_as_it_left() {
+        let (_, payload, _, _) = frame(16, 12);
+        let got = decode_request(&request(ImageEncoding::Raw), RUN).unwrap();
+        assert_eq!(got.payload, payload);
+    }
+
+    #[test]
     fn a_jpeg_frame_arrives_close_and_depth_exact() {
         let (_, payload, _, _) = frame(16, 12);
-        let got = decode_request(&request(ColourEncoding::Jpeg(90)), RUN).unwrap();
+        let got = decode_request(&request(ImageEncoding::Jpeg(90)), RUN).unwrap();
         let rgb = 16 * 12 * 3;
         assert_eq!(got.payload.len(), payload.len());
         assert_eq!(got.payload[rgb..], payload[rgb..], "depth is lossless");
@@ -549,7 +651,7 @@ mod tests {
 
     #[test]
     fn another_runs_frame_is_refused_by_name() {
-        let e = decode_request(&request(ColourEncoding::Png), "robot2").unwrap_err();
+        let e = decode_request(&request(ImageEncoding::Png), "robot2").unwrap_err();
         assert!(
             e.to_string()
                 .contains("frame 7 of run 'robot1': this worker serves run 'robot2'"),
@@ -559,7 +661,7 @@ mod tests {
 
     #[test]
     fn hostile_requests_are_errors_that_say_what_is_wrong() {
-        let good: FrameRequest = postcard::from_bytes(&request(ColourEncoding::Png)).unwrap();
+        let good: FrameRequest = postcard::from_bytes(&request(ImageEncoding::Png)).unwrap();
         let cases: Vec<(FrameRequest, &str)> = vec![
             (
                 FrameRequest {
@@ -591,10 +693,17 @@ mod tests {
             ),
             (
                 FrameRequest {
-                    colour: vec![0x89, b'P', b'N', b'G'],
+                    colour: Blob(vec![0x89, b'P', b'N', b'G']),
                     ..good.clone()
                 },
                 "Png image",
+            ),
+            (
+                FrameRequest {
+                    encoding: ImageEncoding::Raw,
+                    ..good.clone()
+                },
+                "raw Rgb8 of",
             ),
             (
                 FrameRequest {
@@ -625,7 +734,7 @@ mod tests {
     #[test]
     fn the_decoders_survive_truncated_flipped_and_random_bytes() {
         let mut rng = fastrand::Rng::with_seed(51);
-        let good = request(ColourEncoding::Png);
+        let good = request(ImageEncoding::Png);
         let (_, _, mut masks, labels) = frame(16, 12);
         masks.seq = 7;
         let reply = encode_reply(

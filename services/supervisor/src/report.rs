@@ -114,6 +114,49 @@ fn remote_line(run_dir: &Path, config: &PipelineConfig) -> Option<String> {
     ))
 }
 
+/// Draws `plots/latency.png`: a histogram per stage that ran (end to end,
+/// tracking, extraction, the mask workers, decoding); returns their names.
+fn latency_histograms(
+    rows: &[FrameRow],
+    latency: &[latency::StageSummary],
+    plots: &Path,
+) -> Result<Vec<&'static str>> {
+    let per_row: Vec<[Option<f64>; STAGES.len()]> = rows.iter().map(latency::stage_ms).collect();
+    let shown = [
+        "end_to_end",
+        "track",
+        "slam_extract",
+        "segmenter",
+        "propagator",
+        "decode",
+    ];
+    let mut panels = Vec::new();
+    for name in shown {
+        let i = STAGES
+            .iter()
+            .position(|s| *s == name)
+            .expect("a known stage");
+        let v: Vec<f64> = per_row.iter().filter_map(|r| r[i]).collect();
+        if v.is_empty() {
+            continue;
+        }
+        let stage = latency.iter().find(|s| s.stage == name);
+        panels.push(Histogram {
+            stage: name,
+            values_ms: v,
+            p50_ms: stage.map_or(0.0, |s| s.p50_ms),
+            p99_ms: stage.map_or(1.0, |s| s.p99_ms),
+        });
+    }
+    if !panels.is_empty() {
+        plots::save(
+            &plots::histograms(&panels, "Latency per stage (ms per frame)")?,
+            &plots.join("latency.png"),
+        )?;
+    }
+    Ok(panels.iter().map(|p| p.stage).collect())
+}
+
 /// Writes the report of the run in `run_dir`; `rows` are its frames,
 /// `problems` what degraded or failed the run (the report opens with them).
 pub fn write(
@@ -242,40 +285,7 @@ pub fn write(
     };
 
     // Latency histograms of the stages that ran.
-    let per_row: Vec<[Option<f64>; STAGES.len()]> = rows.iter().map(latency::stage_ms).collect();
-    let shown = [
-        "end_to_end",
-        "track",
-        "slam_extract",
-        "segmenter",
-        "propagator",
-        "decode",
-    ];
-    let mut panels = Vec::new();
-    for name in shown {
-        let i = STAGES
-            .iter()
-            .position(|s| *s == name)
-            .expect("a known stage");
-        let v: Vec<f64> = per_row.iter().filter_map(|r| r[i]).collect();
-        if v.is_empty() {
-            continue;
-        }
-        let stage = latency.iter().find(|s| s.stage == name);
-        panels.push(Histogram {
-            stage: name,
-            values_ms: v,
-            p50_ms: stage.map_or(0.0, |s| s.p50_ms),
-            p99_ms: stage.map_or(1.0, |s| s.p99_ms),
-        });
-    }
-    let panel_names: Vec<&str> = panels.iter().map(|p| p.stage).collect();
-    if !panels.is_empty() {
-        plots::save(
-            &plots::histograms(&panels, "Latency per stage (ms per frame)")?,
-            &plots.join("latency.png"),
-        )?;
-    }
+    let panel_names = latency_histograms(rows, &latency, &plots)?;
 
     // report.md
     let title = run_dir

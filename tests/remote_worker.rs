@@ -178,6 +178,18 @@ fn start_worker(net: &Net, dir: &Path, log: &str) -> Child {
         .unwrap()
 }
 
+/// A worker serving in its namespace, and the 20 ms relay to it in the
+/// robot's.
+fn worker_behind_relay(net: &Net, dir: &Path) -> (Child, Relay) {
+    let worker = start_worker(net, dir, "worker.log");
+    wait_serving(dir, "worker.log");
+    let target: SocketAddr = format!("{}:{WORKER_PORT}", net.worker_ip).parse().unwrap();
+    (
+        worker,
+        relay_in(&net.robot, target, Duration::from_millis(20)),
+    )
+}
+
 /// Waits until the worker's log says it serves.
 fn wait_serving(dir: &Path, log: &str) {
     let deadline = Instant::now() + Duration::from_secs(60);
@@ -295,10 +307,7 @@ fn keyframe_masks_come_from_the_remote_worker_and_equal_the_local_ones() {
     );
     let local = run_local(&dir, &local_config);
     let net = Net::new();
-    let worker = start_worker(&net, &dir, "worker.log");
-    wait_serving(&dir, "worker.log");
-    let target: SocketAddr = format!("{}:{WORKER_PORT}", net.worker_ip).parse().unwrap();
-    let relay = relay_in(&net.robot, target, Duration::from_millis(20));
+    let (worker, relay) = worker_behind_relay(&net, &dir);
     let config = robot_config(
         &dir,
         &relay.endpoint(),
@@ -368,10 +377,7 @@ fn a_link_down_for_two_seconds_loses_no_frame_and_the_masks_resume() {
     let _serial = one_at_a_time();
     let dir = scratch("remote-linkdown");
     let net = Net::new();
-    let worker = start_worker(&net, &dir, "worker.log");
-    wait_serving(&dir, "worker.log");
-    let target: SocketAddr = format!("{}:{WORKER_PORT}", net.worker_ip).parse().unwrap();
-    let relay = relay_in(&net.robot, target, Duration::from_millis(20));
+    let (worker, relay) = worker_behind_relay(&net, &dir);
     let config = robot_config(
         &dir,
         &relay.endpoint(),

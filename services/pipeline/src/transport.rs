@@ -606,8 +606,8 @@ pub fn remove_prefixed_files(prefix: &str) -> Result<usize> {
 
 /// Every file of the run's prefix still on disk (shared memory and
 /// bookkeeping files). Empty after a clean shutdown.
-pub fn run_files(names: &RunNames) -> Result<Vec<PathBuf>> {
-    Ok(prefixed_files(&names.file_prefix()))
+pub fn run_files(names: &RunNames) -> Vec<PathBuf> {
+    prefixed_files(&names.file_prefix())
 }
 
 fn collect_prefixed(dir: &Path, prefix: &str, out: &mut Vec<PathBuf>) {
@@ -632,7 +632,7 @@ fn collect_prefixed(dir: &Path, prefix: &str, out: &mut Vec<PathBuf>) {
 pub fn make_run_files_private(names: &RunNames) -> Result<usize> {
     use std::os::unix::fs::PermissionsExt;
     let mut changed = 0;
-    for f in run_files(names)? {
+    for f in run_files(names) {
         let Ok(meta) = std::fs::metadata(&f) else {
             continue; // gone meanwhile
         };

@@ -496,14 +496,15 @@ impl<T: Clone> Ledger<T> {
         match source {
             MaskSource::Segmenter => {
                 self.router.on_segment_gone(seq);
-                (route == Some(RouteKind::Segment))
-                    .then(|| self.drop_frame(seq, why::REPLACED_IN_SEGMENTER, now))
-                    .flatten()
+                if route == Some(RouteKind::Segment) {
+                    self.drop_frame(seq, why::REPLACED_IN_SEGMENTER, now)
+                } else {
+                    None
+                }
             }
-            MaskSource::Propagator => route
-                .is_some_and(|r| r.propagates())
-                .then(|| self.drop_frame(seq, why::REPLACED_IN_PROPAGATOR, now))
-                .flatten(),
+            MaskSource::Propagator if route.is_some_and(|r| r.propagates()) => {
+                self.drop_frame(seq, why::REPLACED_IN_PROPAGATOR, now)
+            }
             _ => None,
         }
     }

@@ -525,7 +525,7 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
 /// Every process of the run is gone: nothing of it may stay in /dev/shm.
 fn remove_shared_memory(names: &RunNames) -> Result<()> {
     cleanup_dead_nodes(names)?;
-    let left = run_files(names)?;
+    let left = run_files(names);
     if !left.is_empty() {
         // Normally only iceoryx2's global management segment, which outlives
         // the last node by design; anything else is a killed process's.

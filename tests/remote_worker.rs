@@ -412,7 +412,10 @@ fn a_link_down_for_two_seconds_loses_no_frame_and_the_masks_resume() {
     stop(worker);
 
     let rows = read_rows(&run_dir);
-    let seqs: Vec<u64> = rows.iter().map(|r| r["seq"].parse().unwrap()).collect();
+    // Rows are written as each frame's fate is known: in real time not in
+    // frame order.
+    let mut seqs: Vec<u64> = rows.iter().map(|r| r["seq"].parse().unwrap()).collect();
+    seqs.sort_unstable();
     assert_eq!(seqs, (0..300).collect::<Vec<u64>>(), "every frame once");
     let masks = mask_rows(&run_dir);
     let segmenter: Vec<_> = masks.iter().filter(|r| r.1 == "segmenter").collect();

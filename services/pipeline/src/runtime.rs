@@ -67,8 +67,15 @@ impl ServiceContext {
 /// Installs the `tracing` subscriber (stderr, `RUST_LOG` or `info`), with the
 /// service name on every line so that interleaved child logs stay readable.
 pub fn init_logging() {
+    init_logging_with("info");
+}
+
+/// [`init_logging`] with another filter where `RUST_LOG` is unset (a
+/// binary that quiets a library's own warnings; `run_service` then keeps
+/// the subscriber installed first).
+pub fn init_logging_with(default_filter: &str) {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_filter));
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)

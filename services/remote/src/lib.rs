@@ -18,3 +18,8 @@ pub mod relay;
 pub mod serve;
 pub mod session;
 pub mod wire;
+
+/// The log filter of the remote binaries where `RUST_LOG` is unset: Zenoh's
+/// own warnings (one per timed-out query and per late reply while a link is
+/// down) left out; the link says and counts what happened itself.
+pub const LOG_FILTER: &str = "info,zenoh=error";

@@ -87,6 +87,9 @@ pub struct RemoteSegmenter {
     timeout: Duration,
     /// `mask_flags` of the masks made last.
     origin: u32,
+    /// Frames in a row without remote masks (said once when it starts and
+    /// once when it ends, not per frame).
+    streak: u64,
     stats: LinkStats,
 }
 
@@ -149,6 +152,7 @@ impl RemoteSegmenter {
             with_depth: r.depth,
             timeout: Duration::from_millis(r.timeout_ms),
             origin: 0,
+            streak: 0,
             stats: LinkStats::default(),
         };
         tracing::info!(
@@ -282,12 +286,27 @@ impl MaskModel for RemoteSegmenter {
     ) -> Result<Vec<Instance>> {
         let why = match self.ask(frame, previous, labels) {
             Ok(instances) => {
+                if self.streak > 0 {
+                    tracing::info!(
+                        "remote masks again after {} frames without them",
+                        self.streak
+                    );
+                    self.streak = 0;
+                }
                 self.stats.remote += 1;
                 self.origin = mask_flags::REMOTE;
                 return Ok(instances);
             }
             Err(why) => why,
         };
+        if self.streak == 0 {
+            let instead = match self.fallback {
+                Some(_) => "the local model makes the masks until it answers again",
+                None => "frames go without segmenter masks until it answers again",
+            };
+            tracing::warn!(seq = frame.header.seq, "{}: {instead}", why.describe());
+        }
+        self.streak += 1;
         match &why {
             NoAnswer::Timeout => self.stats.timeouts += 1,
             NoAnswer::Vanished => self.stats.vanished += 1,

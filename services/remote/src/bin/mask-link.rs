@@ -20,6 +20,7 @@ struct Args {
 
 fn main() -> ExitCode {
     let args = Args::parse();
+    pipeline::runtime::init_logging_with(remote::LOG_FILTER);
     run_service(ServiceKind::Segmenter, &args.service, |ctx| {
         let model = RemoteSegmenter::connect(&ctx.config)?;
         mask_worker::run(ctx, MaskSource::Segmenter, Box::new(model))

@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use anyhow::Result;
 use clap::{Parser, ValueEnum};
 use pipeline::config::{check_run_name, ClockMode, PipelineConfig};
-use pipeline::runtime::init_logging;
+use pipeline::runtime::init_logging_with;
 use remote::serve::serve;
 use remote::session::{open, Endpoints};
 
@@ -62,7 +62,7 @@ extern "C" fn on_signal(_: libc::c_int) {
 }
 
 fn main() -> ExitCode {
-    init_logging();
+    init_logging_with(remote::LOG_FILTER);
     let args = Args::parse();
     match run(&args) {
         Ok(()) => ExitCode::SUCCESS,

@@ -68,7 +68,7 @@ struct Frame {
 }
 
 fn main() -> Result<()> {
-    pipeline::runtime::init_logging();
+    pipeline::runtime::init_logging_with(remote::LOG_FILTER);
     let args = Args::parse();
     if let Some(RelayCommand::Relay {
         listen,

@@ -153,9 +153,9 @@ bench-dropped dataset=tum *args="": build
         m = v[int((NR + 1) / 2)]
         printf "frames left out, %d copies: median %.4f m (%.2fx every frame), mean %.4f m, worst %.4f m\n", NR, m, m / full, s / NR, v[NR] }'
 
-# The whole pipeline in real time on the shared sequence: 30 and 60 fps, each without and with 2 busy processes pinned to the cores; tracked fps, drops, end-to-end p50/p99, masked share, keyframes and ATE next to lockstep's (writes bench-results/realtime.json).
+# The whole pipeline in real time on the shared sequence: 30 and 60 fps, each without and with 2 busy processes pinned to the cores; tracked fps, drops, end-to-end p50/p99, masked share, keyframes and ATE next to lockstep's; and a kill row: 30 fps with the SLAM killed 5 times a run, frames without a pose per kill and the time to the next pose (writes bench-results/realtime.json).
 bench-realtime *args="": build setup
-    ./target/release/realtime-bench {{args}}
+    ./target/release/realtime-bench --slam-kills 5 {{args}}
 
 # Real time, this build against an older checkout's target/release, alternated in one invocation: per condition the median and spread of each build and their ratio.
 bench-realtime-compare old *args="": build setup

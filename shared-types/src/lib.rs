@@ -349,6 +349,14 @@ impl MasksHeader {
     pub fn instances(&self) -> &[Instance] {
         &self.instances[..(self.num_instances as usize).min(MAX_INSTANCES)]
     }
+    /// Holds the first [`MAX_INSTANCES`] of `instances` (a header has room
+    /// for no more); returns how many it holds.
+    pub fn set_instances(&mut self, instances: &[Instance]) -> usize {
+        let n = instances.len().min(MAX_INSTANCES);
+        self.instances[..n].copy_from_slice(&instances[..n]);
+        self.num_instances = n as u32;
+        n
+    }
 }
 
 /// Tracking state of one frame.
@@ -530,12 +538,24 @@ pub struct Lifecycle {
     pub ready_ns: u64,
 }
 
-/// Supervisor's commands to the camera-reader.
+/// Supervisor's commands to the camera-reader (the scheduling crate's
+/// `SourceCommand` on the wire).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
 pub struct Control {
+    /// A [`control_kind`] value.
+    pub kind: u32,
+    /// The frame the command is about (`REPLAY`).
+    pub seq: u64,
+}
+
+/// What a [`Control`] message asks of the camera-reader.
+pub mod control_kind {
     /// Publish frame `seq` again (lockstep recovery after a restart).
-    pub replay_seq: u64,
+    pub const REPLAY: u32 = 1;
+    /// Real time: the SLAM restarted; stop waiting for the Tracks of the
+    /// frames published before it.
+    pub const FORGET_BACKLOG: u32 = 2;
 }
 
 /// User header of a map snapshot (slam -> bridge, throttled): the map as
@@ -695,6 +715,25 @@ mod tests {
         assert_eq!(RouteKind::from_u32(0), None);
         assert_eq!(TrackState::from_u32(99), None);
         assert_eq!(ServiceKind::from_u32(4), Some(ServiceKind::Slam));
+    }
+
+    #[test]
+    fn a_masks_header_holds_at_most_max_instances() {
+        let many: Vec<Instance> = (0..MAX_INSTANCES as u32 + 3)
+            .map(|i| Instance {
+                object_id: i + 1,
+                ..Default::default()
+            })
+            .collect();
+        let mut h = MasksHeader::default();
+        assert_eq!(h.set_instances(&many[..2]), 2);
+        assert_eq!(h.instances().len(), 2);
+        assert_eq!(h.set_instances(&many), MAX_INSTANCES);
+        assert_eq!(h.num_instances as usize, MAX_INSTANCES);
+        assert_eq!(
+            h.instances().last().unwrap().object_id,
+            MAX_INSTANCES as u32
+        );
     }
 
     #[test]

@@ -19,7 +19,7 @@ use pipeline::clock::now_ns;
 use pipeline::config::{ClockMode, SourceKind};
 use pipeline::runtime::{run_service, InputError, ServiceArgs, ServiceContext};
 use pipeline::transport::{attach, wait, waitset, Receiver, SampleMut, Sender, Svc, Waiter, Wake};
-use scheduling::source::{due_ns, LockstepCursor, Publish};
+use scheduling::source::{due_ns, LockstepCursor, Publish, SourceCommand};
 use shared_types::names::Topic;
 use shared_types::{frame_flags, Control, FrameHeader, ServiceKind, Track};
 
@@ -272,7 +272,10 @@ fn lockstep(
             return Ok(());
         }
         for c in control.drain()? {
-            if let Some(Publish::Replay(seq)) = cursor.on_replay(c.replay_seq) {
+            let Some(SourceCommand::Replay(seq)) = SourceCommand::from_control(&c) else {
+                continue; // real-time commands do not apply
+            };
+            if let Some(Publish::Replay(seq)) = cursor.on_replay(seq) {
                 tracing::info!(seq, "replaying frame after a restart");
                 player.publish(seq, true)?;
             }
@@ -293,6 +296,18 @@ impl Backlog {
     fn note_tracks(&mut self, tracks: &Receiver<Track, ()>) -> Result<()> {
         for t in tracks.drain()? {
             self.0.on_track(t.seq);
+        }
+        Ok(())
+    }
+
+    /// The supervisor's commands: a restarted SLAM clears the backlog
+    /// (replays do not apply at camera rate).
+    fn note_control(&mut self, control: &Receiver<Control, ()>) -> Result<()> {
+        for c in control.drain()? {
+            if SourceCommand::from_control(&c) == Some(SourceCommand::ForgetBacklog) {
+                tracing::debug!("the SLAM restarted: not waiting for its predecessor's Tracks");
+                self.0.forget();
+            }
         }
         Ok(())
     }
@@ -358,7 +373,7 @@ fn realtime(
             if wait(ws, Duration::from_nanos(due - now))? == Wake::Terminate {
                 return Ok(());
             }
-            control.drain()?; // replays do not apply at camera rate
+            backlog.note_control(control)?;
         }
         let captured = now_ns();
         if ahead.is_none() {
@@ -447,7 +462,7 @@ fn live(ctx: ServiceContext) -> Result<()> {
             stopped = true;
             break;
         }
-        control.drain()?; // replays do not apply at camera rate
+        backlog.note_control(&control)?;
         backlog.note_tracks(&tracks)?;
         if backlog.full() {
             let Some(arrived) = camera.skip(CAMERA_POLL, now_ns)? else {

@@ -16,6 +16,7 @@ use shared_types::{MaskSource, RouteKind, ServiceKind};
 
 use crate::mode::ClockMode;
 use crate::routing::{Availability, Router, RoutingConfig};
+use crate::source::SourceCommand;
 
 /// Real time: frames at most between their route and their Track (one
 /// being tracked, one being masked). The propagator then masks only
@@ -559,21 +560,40 @@ impl<T: Clone> Ledger<T> {
             .collect()
     }
 
-    /// A service came up (`was_restart`: not for the first time). Lockstep
-    /// recovery: the frame in flight may have been lost with the dead
-    /// process, so the reader publishes the first unrecorded one again
-    /// (returned). The reader itself starts from it, and the bridge is off
-    /// the frame path.
-    pub fn replay_for(
+    /// A service came up (`was_restart`: not for the first time): what the
+    /// reader is told. Lockstep recovery: the frame in flight may have been
+    /// lost with the dead process, so the reader publishes the first
+    /// unrecorded one again (the reader itself starts from it, and the
+    /// bridge is off the frame path). Real time: a restarted SLAM never gets
+    /// the frames published or routed before it, so neither the reader nor
+    /// the in-flight limit waits for their Tracks.
+    pub fn on_service_ready(
         &mut self,
         kind: ServiceKind,
         was_restart: bool,
         now: Instant,
-    ) -> Option<u64> {
+    ) -> Option<SourceCommand> {
         self.note_progress(now);
-        let on_frame_path = !matches!(kind, ServiceKind::CameraReader | ServiceKind::Bridge);
-        (self.mode == ClockMode::Lockstep && was_restart && on_frame_path && !self.complete())
-            .then(|| self.next_seq())
+        if !was_restart || self.complete() {
+            return None;
+        }
+        match self.mode {
+            ClockMode::Lockstep => {
+                let on_frame_path =
+                    !matches!(kind, ServiceKind::CameraReader | ServiceKind::Bridge);
+                on_frame_path.then(|| SourceCommand::Replay(self.next_seq()))
+            }
+            ClockMode::Realtime if kind == ServiceKind::Slam => {
+                // Nor does it get their routes: the frames routed so far
+                // no longer hold the in-flight limit (the newer frames it
+                // tracks drop them).
+                for p in self.pending.values_mut() {
+                    p.routed_at = None;
+                }
+                Some(SourceCommand::ForgetBacklog)
+            }
+            ClockMode::Realtime => None,
+        }
     }
 
     /// The watchdog: with every service settled (up or given up on) and

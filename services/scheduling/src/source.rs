@@ -2,6 +2,8 @@
 //! one is tracked; in real time each frame at its instant, left out
 //! undecoded when the pipeline is behind.
 
+use shared_types::{control_kind, Control};
+
 /// Real time: decoded frames newer than SLAM's newest Track beyond which
 /// the next one is left out undecoded (decoding a frame nobody will track
 /// takes the cores the pipeline needs; a 60 fps PNG source costs most of one).
@@ -41,6 +43,50 @@ impl Backlog {
     /// Frame `seq` was published at `now_ns`.
     pub fn published(&mut self, seq: u64, now_ns: u64) {
         self.decoded.push((seq, now_ns));
+    }
+
+    /// The SLAM restarted ([`SourceCommand::ForgetBacklog`]): the frames
+    /// published so far never reach the new process (frames keep no
+    /// history), so none of them is waited for; without this the reader
+    /// left out every frame for [`BACKLOG_TIMEOUT_NS`] after each SLAM kill.
+    pub fn forget(&mut self) {
+        self.decoded.clear();
+    }
+}
+
+/// What the supervisor tells the reader (the `Control` message).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SourceCommand {
+    /// Lockstep: publish frame `seq` again (a service restarted with it in
+    /// flight).
+    Replay(u64),
+    /// Real time: the SLAM restarted; stop waiting for the Tracks of the
+    /// frames published so far ([`Backlog::forget`]).
+    ForgetBacklog,
+}
+
+impl SourceCommand {
+    /// The command as its message.
+    pub fn to_control(self) -> Control {
+        match self {
+            Self::Replay(seq) => Control {
+                kind: control_kind::REPLAY,
+                seq,
+            },
+            Self::ForgetBacklog => Control {
+                kind: control_kind::FORGET_BACKLOG,
+                seq: 0,
+            },
+        }
+    }
+
+    /// The command a message carries (None: a kind this build does not know).
+    pub fn from_control(c: &Control) -> Option<Self> {
+        match c.kind {
+            control_kind::REPLAY => Some(Self::Replay(c.seq)),
+            control_kind::FORGET_BACKLOG => Some(Self::ForgetBacklog),
+            _ => None,
+        }
     }
 }
 

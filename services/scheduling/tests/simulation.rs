@@ -10,7 +10,7 @@ use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::time::{Duration, Instant};
 
 use scheduling::ledger::{Arrival, Input, Ledger};
-use scheduling::source::{Backlog, LockstepCursor, Publish};
+use scheduling::source::{Backlog, LockstepCursor, Publish, SourceCommand};
 use scheduling::tracking::{frame_ready, next_frame};
 use scheduling::worker::{Next, WorkQueue};
 use scheduling::{Availability, ClockMode, RoutingConfig};
@@ -72,6 +72,7 @@ enum Msg {
         keyframe_next: bool,
     },
     Replay(u64),
+    ForgetBacklog,
     Ready {
         kind: ServiceKind,
         restart: bool,
@@ -371,6 +372,7 @@ impl Sim {
                     self.publish_frame(now, s, false);
                 }
             }
+            Msg::ForgetBacklog => self.backlog.forget(),
             _ => {}
         }
     }
@@ -406,12 +408,17 @@ impl Sim {
                     self.ledger.on_masks(seq, source, wanted);
                 }
             }
-            Msg::Ready { kind, restart } => {
-                if let Some(seq) = self.ledger.replay_for(kind, restart, at) {
+            Msg::Ready { kind, restart } => match self.ledger.on_service_ready(kind, restart, at) {
+                Some(SourceCommand::Replay(seq)) => {
                     self.bus
-                        .send(now, Proc::Supervisor, Proc::Reader, Msg::Replay(seq));
+                        .send(now, Proc::Supervisor, Proc::Reader, Msg::Replay(seq))
                 }
-            }
+                Some(SourceCommand::ForgetBacklog) => {
+                    self.bus
+                        .send(now, Proc::Supervisor, Proc::Reader, Msg::ForgetBacklog)
+                }
+                None => {}
+            },
             _ => {}
         }
     }

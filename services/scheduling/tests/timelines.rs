@@ -6,7 +6,9 @@ use std::time::{Duration, Instant};
 
 use scheduling::ledger::{why, Arrival, Input, Ledger, Stall, END_OF_STREAM_GRACE};
 use scheduling::mode::{segmenter_input_size, unseen_view_share};
-use scheduling::source::{due_ns, Backlog, LockstepCursor, Publish, BACKLOG_TIMEOUT_NS};
+use scheduling::source::{
+    due_ns, Backlog, LockstepCursor, Publish, SourceCommand, BACKLOG_TIMEOUT_NS,
+};
 use scheduling::tracking::{
     completes_waiting_keyframe, frame_ready, keyframe_waited_too_long, next_frame, segmenter_alive,
     SEGMENTER_PATIENCE,
@@ -165,24 +167,75 @@ fn a_restarted_frame_path_service_gets_the_first_unrecorded_frame_replayed_in_lo
         ServiceKind::Propagator,
         ServiceKind::Slam,
     ] {
-        assert_eq!(l.replay_for(kind, true, c.at(100)), Some(3), "{kind:?}");
-        assert_eq!(l.replay_for(kind, false, c.at(100)), None, "first start");
+        assert_eq!(
+            l.on_service_ready(kind, true, c.at(100)),
+            Some(SourceCommand::Replay(3)),
+            "{kind:?}"
+        );
+        assert_eq!(
+            l.on_service_ready(kind, false, c.at(100)),
+            None,
+            "first start"
+        );
     }
     // The reader restarts from the first unrecorded frame by itself, and
     // the bridge is off the frame path.
     assert_eq!(
-        l.replay_for(ServiceKind::CameraReader, true, c.at(100)),
+        l.on_service_ready(ServiceKind::CameraReader, true, c.at(100)),
         None
     );
-    assert_eq!(l.replay_for(ServiceKind::Bridge, true, c.at(100)), None);
+    assert_eq!(
+        l.on_service_ready(ServiceKind::Bridge, true, c.at(100)),
+        None
+    );
 }
 
 #[test]
-fn real_time_replays_nothing_after_a_restart() {
+fn real_time_replays_nothing_after_a_restart_and_a_restarted_slam_clears_the_readers_backlog() {
     let c = Clock::new();
     let mut l = ledger(ClockMode::Realtime, &c);
     arrive(&mut l, 0, &c, 0);
-    assert_eq!(l.replay_for(ServiceKind::Slam, true, c.at(100)), None);
+    assert_eq!(
+        l.on_service_ready(ServiceKind::Slam, true, c.at(100)),
+        Some(SourceCommand::ForgetBacklog)
+    );
+    assert_eq!(
+        l.on_service_ready(ServiceKind::Slam, false, c.at(100)),
+        None,
+        "first start"
+    );
+    for kind in [
+        ServiceKind::Segmenter,
+        ServiceKind::Propagator,
+        ServiceKind::CameraReader,
+        ServiceKind::Bridge,
+    ] {
+        assert_eq!(l.on_service_ready(kind, true, c.at(100)), None, "{kind:?}");
+    }
+}
+
+/// A SLAM killed with three frames in the reader's backlog: without the
+/// supervisor's word the reader leaves out every frame until the backlog
+/// times out (a second of frames without a pose); with it, the next frame
+/// is published.
+#[test]
+fn a_restarted_slam_does_not_leave_the_reader_waiting_for_the_dead_ones_tracks() {
+    let ms = 1_000_000;
+    let mut b = Backlog::default();
+    b.published(0, 0);
+    b.on_track(0);
+    for seq in 1..=3 {
+        b.published(seq, seq * 33 * ms);
+    }
+    // SLAM killed here; the new one is up 100 ms later.
+    assert!(b.full(200 * ms), "three frames in flight: left out");
+    assert!(
+        b.full(900 * ms),
+        "still waiting for the dead process's Tracks"
+    );
+    let mut told = b.clone();
+    told.forget();
+    assert!(!told.full(200 * ms), "told: the next frame goes out");
 }
 
 #[test]
@@ -195,7 +248,7 @@ fn a_completed_run_replays_nothing() {
     assert!(l.on_end_of_stream(1, c.at(2)));
     assert!(!l.on_end_of_stream(1, c.at(3)), "said once");
     assert!(l.complete());
-    assert_eq!(l.replay_for(ServiceKind::Slam, true, c.at(4)), None);
+    assert_eq!(l.on_service_ready(ServiceKind::Slam, true, c.at(4)), None);
 }
 
 #[test]
@@ -363,6 +416,31 @@ fn a_route_older_than_the_flight_timeout_no_longer_holds_a_place() {
     arrive(&mut l, 3, &c, 100);
     assert!(routes(&mut l, &c, 299).is_empty());
     assert_eq!(routes(&mut l, &c, 304), [(3, RouteKind::Propagate)]);
+}
+
+/// The frames routed to a SLAM that died never reach its successor: once
+/// the new one is up they hold no place, and the next frame is routed at
+/// once instead of after the flight timeout (300 ms: 9 frames at 30 fps).
+#[test]
+fn a_restarted_slam_frees_the_places_of_the_frames_routed_before_it() {
+    let c = Clock::new();
+    let mut l = ledger(ClockMode::Realtime, &c);
+    arrive(&mut l, 0, &c, 0);
+    routes(&mut l, &c, 0);
+    l.on_masks(0, MaskSource::Segmenter, false);
+    track(&mut l, 0, false, &c, 1);
+    arrive(&mut l, 1, &c, 2);
+    arrive(&mut l, 2, &c, 3);
+    assert_eq!(routes(&mut l, &c, 3).len(), 2);
+    // SLAM killed with frames 1 and 2 in flight; up again at 60 ms.
+    arrive(&mut l, 3, &c, 40);
+    assert!(routes(&mut l, &c, 40).is_empty(), "two in flight");
+    assert_eq!(
+        l.on_service_ready(ServiceKind::Slam, true, c.at(60)),
+        Some(SourceCommand::ForgetBacklog)
+    );
+    assert_eq!(routes(&mut l, &c, 60), [(3, RouteKind::Propagate)]);
+    assert_eq!(track(&mut l, 3, false, &c, 90), [1, 2]);
 }
 
 #[test]

@@ -87,10 +87,14 @@ impl RgbdTracker {
             .or(files.load.as_ref().map(|p| (p, "map")));
         let mut system = match start {
             Some((path, what)) => {
+                let started = std::time::Instant::now();
                 let file = MapFile::read_for(path, &camera, &params)?;
+                // What a restart spends on the map (the rest of a restart
+                // is the process start and the first frame).
                 tracing::info!(
                     keyframes = file.map.live_keyframes().count(),
                     points = file.map.live_point_count(),
+                    read_ms = started.elapsed().as_millis() as u64,
                     "going on in the {what} {}: the first frames relocalise",
                     path.display()
                 );

@@ -42,8 +42,12 @@ impl RestartPolicy {
         }
     }
 
-    /// A service that was up for `uptime` died.
-    pub fn on_death(&mut self, uptime: Duration) -> RestartDecision {
+    /// A service that was up for `uptime`, and ready for `ready_for` of it
+    /// (None: it never was), died. The backoff is for start-up crash loops:
+    /// a service that served [`SERVED_BEFORE_DEATH`] is restarted at once
+    /// (a killed SLAM waiting 100, 200, 400 ms... cost that many frames
+    /// without a pose). Deaths in a row still count towards the limit.
+    pub fn on_death(&mut self, uptime: Duration, ready_for: Option<Duration>) -> RestartDecision {
         if uptime >= self.reset_after {
             self.next_delay = self.initial;
             self.consecutive = 0;
@@ -54,11 +58,19 @@ impl RestartPolicy {
                 deaths_in_a_row: self.consecutive,
             };
         }
+        if ready_for.is_some_and(|r| r >= SERVED_BEFORE_DEATH) {
+            self.next_delay = self.initial;
+            return RestartDecision::RestartAfter(Duration::ZERO);
+        }
         let delay = self.next_delay;
         self.next_delay = (self.next_delay * 2).min(self.max);
         RestartDecision::RestartAfter(delay)
     }
 }
+
+/// A service ready for this long before it died was not crash-looping at
+/// start: it is restarted without delay.
+pub const SERVED_BEFORE_DEATH: Duration = Duration::from_secs(1);
 
 /// How a child ended, in words for logs and reports.
 pub fn describe_exit(status: ExitStatus) -> String {
@@ -204,7 +216,7 @@ mod tests {
     fn backoff_doubles_up_to_the_cap() {
         let mut p = policy();
         let delays: Vec<_> = (0..4)
-            .map(|_| p.on_death(Duration::from_millis(5)))
+            .map(|_| p.on_death(Duration::from_millis(5), None))
             .collect();
         let ms = |d: u64| RestartDecision::RestartAfter(Duration::from_millis(d));
         assert_eq!(delays, vec![ms(100), ms(200), ms(400), ms(500)]);
@@ -215,21 +227,55 @@ mod tests {
         let mut p = policy();
         for _ in 0..4 {
             assert!(matches!(
-                p.on_death(Duration::ZERO),
+                p.on_death(Duration::ZERO, None),
                 RestartDecision::RestartAfter(_)
             ));
         }
         assert_eq!(
-            p.on_death(Duration::ZERO),
+            p.on_death(Duration::ZERO, None),
             RestartDecision::GiveUp { deaths_in_a_row: 5 }
         );
         // A service that was up long enough starts over.
         let mut p = policy();
         for _ in 0..20 {
             assert!(
-                matches!(p.on_death(Duration::from_secs(11)), RestartDecision::RestartAfter(d) if d == Duration::from_millis(100))
+                matches!(p.on_death(Duration::from_secs(11), None), RestartDecision::RestartAfter(d) if d == Duration::from_millis(100))
             );
         }
+    }
+
+    #[test]
+    fn a_service_that_served_is_restarted_at_once_and_a_start_up_crash_backs_off() {
+        let mut p = RestartPolicy::new(&SupervisorConfig {
+            restart_backoff_initial_ms: 100,
+            restart_backoff_max_ms: 500,
+            restart_backoff_reset_s: 10,
+            restart_limit: 6,
+            ..Default::default()
+        });
+        let ms = |d: u64| RestartDecision::RestartAfter(Duration::from_millis(d));
+        let served = Some(SERVED_BEFORE_DEATH);
+        let s = Duration::from_secs(2);
+        assert_eq!(p.on_death(s, served), ms(0), "killed while serving");
+        assert_eq!(p.on_death(s, served), ms(0), "and again, 2 s later");
+        let early = Some(Duration::from_millis(50));
+        assert_eq!(
+            p.on_death(s, early),
+            ms(100),
+            "died just after it was ready"
+        );
+        assert_eq!(p.on_death(s, None), ms(200), "died before it was ready");
+        assert_eq!(p.on_death(s, served), ms(0));
+        assert_eq!(
+            p.on_death(s, None),
+            ms(100),
+            "served: the backoff starts over"
+        );
+        assert_eq!(
+            p.on_death(s, served),
+            RestartDecision::GiveUp { deaths_in_a_row: 7 },
+            "deaths in a row still count"
+        );
     }
 
     #[test]

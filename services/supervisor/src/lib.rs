@@ -11,6 +11,7 @@ pub mod latency;
 pub mod map_files;
 pub mod mask_eval;
 pub mod mask_record;
+pub mod outages;
 pub mod outputs;
 pub mod plots;
 pub mod report;

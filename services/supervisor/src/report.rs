@@ -335,9 +335,14 @@ pub fn write(
             ""
         }
     )?;
-    for line in [restarts_line(run_dir), remote_line(run_dir, config)]
-        .iter()
-        .flatten()
+    let outages = crate::outages::outages_line(&crate::outages::slam_outages(run_dir, rows));
+    for line in [
+        restarts_line(run_dir),
+        outages,
+        remote_line(run_dir, config),
+    ]
+    .iter()
+    .flatten()
     {
         writeln!(md, "{line}\n")?;
     }
@@ -357,17 +362,11 @@ pub fn write(
         };
         let (resumed, empty) = (list(true), list(false));
         if !resumed.is_empty() {
-            let lost: Vec<String> = starts
-                .iter()
-                .filter(|s| s.from_checkpoint)
-                .map(|s| format!("{} at frame {}", lost_after(rows, s.next_seq), s.next_seq))
-                .collect();
             writeln!(
                 md,
-                "The SLAM service started again at frame{} {} and went on from its map checkpoint, in the same world frame (frames lost before it relocalised: {}).\n",
+                "The SLAM service started again at frame{} {} and went on from its map checkpoint, in the same world frame.\n",
                 if resumed.len() > 1 { "s" } else { "" },
                 resumed.join(", "),
-                lost.join(", ")
             )?;
         }
         if !empty.is_empty() {
@@ -770,14 +769,6 @@ fn rgb_of(c: RGBColor) -> Rgb<u8> {
 /// Path of the report of a run folder.
 pub fn report_path(run_dir: &Path) -> PathBuf {
     run_dir.join(REPORT_FILE)
-}
-
-/// Frames from `from` on that were not tracked before the first tracked one
-/// (what a restarted SLAM lost before relocalising).
-pub fn lost_after(rows: &[FrameRow], from: u64) -> usize {
-    let mut after: Vec<&FrameRow> = rows.iter().filter(|r| r.seq >= from).collect();
-    after.sort_unstable_by_key(|r| r.seq);
-    after.iter().take_while(|r| !r.is_tracked()).count()
 }
 
 #[cfg(test)]

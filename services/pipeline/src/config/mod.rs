@@ -236,7 +236,9 @@ pub use scheduling::RoutingConfig;
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct SupervisorConfig {
-    /// First restart delay; doubled after every restart of the same service.
+    /// Restart delay of a service that died before it had served for a
+    /// second (a start-up crash loop); doubled after each such death. A
+    /// service that served is restarted at once.
     pub restart_backoff_initial_ms: u64,
     pub restart_backoff_max_ms: u64,
     /// A service that stays up this long gets its backoff and its crash

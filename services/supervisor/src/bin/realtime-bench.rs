@@ -14,10 +14,17 @@
 //! and on (publishing to the Zenoh router at ENDPOINT), the two alternated
 //! so that both see the same machine (`just bench-realtime-bridge`).
 //!
-//! `realtime-bench [DATASET] [--runs N] [--load N] [--only 30:0,60:2] [--no-lockstep] [--bridge ENDPOINT] [--out FILE]`
+//! A kill row (`--slam-kills N`; `just bench-realtime` asks for 5): at 30 fps without load, the
+//! SLAM process SIGKILLed N times a run, 1.5 s apart; it prints the frames
+//! without a pose around each kill and the time from the death (as the
+//! supervisor saw it) to the next pose.
+//!
+//! `realtime-bench [DATASET] [--runs N] [--load N] [--only 30:0,60:2] [--no-lockstep] [--bridge ENDPOINT] [--slam-kills N] [--out FILE]`
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
@@ -61,6 +68,9 @@ struct Args {
     /// bridge off.
     #[arg(long)]
     bridge: Option<String>,
+    /// SLAM kills per run of the kill row (30 fps, no load); 0: no kill row.
+    #[arg(long, default_value_t = 0)]
+    slam_kills: usize,
     /// Internal: be a busy process pinned to this core (the load).
     #[arg(long, hide = true)]
     burn: Option<usize>,
@@ -91,6 +101,12 @@ struct RunFigures {
     end_to_end_p50_ms: Option<f64>,
     end_to_end_p99_ms: Option<f64>,
     ate_rmse_m: Option<f64>,
+    /// The SLAM kills of the run (the kill row).
+    slam_kills: usize,
+    /// Per SLAM death: frames without a pose around it.
+    frames_without_pose: Vec<u64>,
+    /// Per SLAM death: from the death seen to the next pose, ms.
+    death_to_pose_ms: Vec<f64>,
     run_dir: PathBuf,
 }
 
@@ -129,6 +145,7 @@ fn main() -> Result<()> {
             &args.output_dir,
             &format!("rtb-{batch}-lockstep"),
             |c| c.run.mode = ClockMode::Lockstep,
+            0,
         )?;
         eprintln!(
             "lockstep: {}/{} tracked, {} keyframes, ATE {}",
@@ -164,14 +181,21 @@ fn main() -> Result<()> {
                     "rtb-{batch}-{fps}fps-load{load}-{i}{}",
                     if on { "-br" } else { "" }
                 );
-                let result = run_once(&base, &dataset, &args.output_dir, &id, |c| {
-                    c.run.mode = ClockMode::Realtime;
-                    c.run.speed = speed;
-                    if let Some(endpoint) = bridge {
-                        c.bridge.enabled = true;
-                        c.bridge.connect = vec![endpoint];
-                    }
-                });
+                let result = run_once(
+                    &base,
+                    &dataset,
+                    &args.output_dir,
+                    &id,
+                    |c| {
+                        c.run.mode = ClockMode::Realtime;
+                        c.run.speed = speed;
+                        if let Some(endpoint) = bridge {
+                            c.bridge.enabled = true;
+                            c.bridge.connect = vec![endpoint];
+                        }
+                    },
+                    0,
+                );
                 stop_load(burners);
                 let mut f = result?;
                 f.fps_in = fps;
@@ -188,6 +212,30 @@ fn main() -> Result<()> {
                 runs.push(f);
             }
         }
+    }
+    let mut kill_runs = Vec::new();
+    let kill_row_runs = if args.slam_kills > 0 { args.runs } else { 0 };
+    for i in 0..kill_row_runs {
+        let id = format!("rtb-{batch}-30fps-slamkills-{i}");
+        let kills = args.slam_kills;
+        let f = run_once(
+            &base,
+            &dataset,
+            &args.output_dir,
+            &id,
+            |c| {
+                c.run.mode = ClockMode::Realtime;
+                c.run.speed = 1.0;
+            },
+            kills,
+        )?;
+        eprintln!(
+            "30 fps, {kills} SLAM kills: frames without a pose per kill {:?}, death to next pose {:?} ms, ATE {}",
+            f.frames_without_pose,
+            f.death_to_pose_ms.iter().map(|m| m.round() as i64).collect::<Vec<_>>(),
+            fmt_m(f.ate_rmse_m)
+        );
+        kill_runs.push(f);
     }
     println!(
         "real time on {} ({} runs per condition; figures: median, worst run in brackets)",
@@ -249,6 +297,10 @@ fn main() -> Result<()> {
             fmt_m(lockstep_ate)
         );
     }
+    if !kill_runs.is_empty() {
+        print_kill_row(&kill_runs);
+    }
+    runs.extend(kill_runs);
     if let Some(parent) = args.out.parent() {
         std::fs::create_dir_all(parent)?;
     }
@@ -265,20 +317,31 @@ fn main() -> Result<()> {
 }
 
 /// One pipeline run on `dataset` with the `base` configuration changed by
-/// `apply`; its figures from the run folder.
+/// `apply`, its SLAM killed `slam_kills` times; its figures from the run
+/// folder.
 fn run_once(
     base: &PipelineConfig,
     dataset: &Path,
     output_dir: &Path,
     id: &str,
     apply: impl FnOnce(&mut PipelineConfig),
+    slam_kills: usize,
 ) -> Result<RunFigures> {
     let mut cfg = base.clone();
     cfg.source.path = dataset.to_path_buf();
     apply(&mut cfg);
     let dir = run_dir::create(output_dir, id, &cfg, "config (realtime-bench)")?;
-    let summary = execute(&dir).with_context(|| format!("run {}", dir.display()))?;
+    let done = Arc::new(AtomicBool::new(false));
+    let killer = (slam_kills > 0).then(|| {
+        let (dir, done) = (dir.clone(), done.clone());
+        std::thread::spawn(move || kill_slam(&dir, slam_kills, &done))
+    });
+    let summary = execute(&dir).with_context(|| format!("run {}", dir.display()));
+    done.store(true, Ordering::Relaxed);
+    let killed = killer.map_or(0, |k| k.join().unwrap_or(0));
+    let summary = summary?;
     let (_, rows) = FrameLog::open(&dir)?;
+    let outages = supervisor::outages::slam_outages(&dir, &rows);
     let report = summary.report.as_ref();
     let stage = |name: &str, p99: bool| {
         report.and_then(|r| {
@@ -292,7 +355,72 @@ fn run_once(
     f.end_to_end_p50_ms = stage("end_to_end", false);
     f.end_to_end_p99_ms = stage("end_to_end", true);
     f.ate_rmse_m = report.and_then(|r| r.eval.as_ref()).map(|e| e.ate_rmse_m);
+    f.slam_kills = killed;
+    f.frames_without_pose = outages
+        .iter()
+        .filter_map(|o| o.frames_without_pose)
+        .collect();
+    f.death_to_pose_ms = outages.iter().filter_map(|o| o.death_to_pose_ms).collect();
+    if killed < slam_kills {
+        eprintln!("{id}: only {killed} of {slam_kills} SLAM kills happened before the run ended");
+    }
     Ok(f)
+}
+
+/// SIGKILLs the run's SLAM process `n` times, 1.5 s apart, the first once
+/// 40 frames are recorded (each time the process is ready and not one
+/// already killed); returns how many kills happened before `done`.
+fn kill_slam(dir: &Path, n: usize, done: &AtomicBool) -> usize {
+    let mut killed: Vec<u32> = Vec::new();
+    let rows = || std::fs::read_to_string(dir.join("frames.csv")).map_or(0, |t| t.lines().count());
+    while !done.load(Ordering::Relaxed) && killed.len() < n {
+        let slam = run_dir::read_status(dir).and_then(|s| {
+            s.children
+                .into_iter()
+                .find(|c| c.service == "slam" && c.state == "ready")
+                .and_then(|c| c.pid)
+        });
+        match slam {
+            Some(pid) if rows() > 40 && !killed.contains(&pid) => {
+                // SAFETY: kill(2) of the run's SLAM pid from its status file.
+                unsafe { libc::kill(pid as i32, libc::SIGKILL) };
+                killed.push(pid);
+                std::thread::sleep(Duration::from_millis(1500));
+            }
+            _ => std::thread::sleep(Duration::from_millis(10)),
+        }
+    }
+    killed.len()
+}
+
+/// The kill row: frames without a pose per SLAM kill and the time from each
+/// death to the next pose, over every kill of every run.
+fn print_kill_row(runs: &[RunFigures]) {
+    let mut frames: Vec<f64> = runs
+        .iter()
+        .flat_map(|r| r.frames_without_pose.iter().map(|&n| n as f64))
+        .collect();
+    let mut ms: Vec<f64> = runs
+        .iter()
+        .flat_map(|r| r.death_to_pose_ms.clone())
+        .collect();
+    let kills: usize = runs.iter().map(|r| r.slam_kills).sum();
+    let spread = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        match (v.first(), v.get(v.len() / 2), v.last()) {
+            (Some(lo), Some(med), Some(hi)) => format!("{med:.0} ({lo:.0}-{hi:.0})"),
+            _ => "-".into(),
+        }
+    };
+    let mut ate: Vec<f64> = runs.iter().filter_map(|r| r.ate_rmse_m).collect();
+    ate.sort_by(f64::total_cmp);
+    println!(
+        "SLAM kills at 30 fps: {kills} kills in {} runs; frames without a pose per kill {}; death to next pose {} ms; ATE {}",
+        runs.len(),
+        spread(&mut frames),
+        spread(&mut ms),
+        fmt_m(ate.get(ate.len() / 2).copied())
+    );
 }
 
 /// Rates from a run's frame rows; the stream lasts from its first to its
@@ -324,6 +452,9 @@ fn figures(rows: &[FrameRow], speed: f64, run_dir: PathBuf) -> RunFigures {
         end_to_end_p50_ms: None,
         end_to_end_p99_ms: None,
         ate_rmse_m: None,
+        slam_kills: 0,
+        frames_without_pose: Vec::new(),
+        death_to_pose_ms: Vec::new(),
         run_dir,
     }
 }

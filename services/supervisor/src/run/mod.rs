@@ -242,8 +242,8 @@ impl Supervisor {
 }
 
 impl Supervisor {
-    /// A service announced it is up (`msg`); a restarted one in lockstep
-    /// gets the frame in flight replayed (it may have died with it).
+    /// A service announced it is up (`msg`); the reader is told what a
+    /// restart means for it ([`Ledger::on_service_ready`]).
     fn on_ready(
         &mut self,
         msg: Lifecycle,
@@ -260,10 +260,14 @@ impl Supervisor {
         }
         let was_restart = svc.restarts > 0;
         svc.state = SvcState::Ready;
+        svc.ready_since = Some(Instant::now());
         self.status_dirty = true;
         tracing::info!("{} ready (pid {})", kind.as_str(), msg.pid);
-        if let Some(replay_seq) = self.ledger.replay_for(kind, was_restart, Instant::now()) {
-            control.send(Control { replay_seq })?;
+        if let Some(command) = self
+            .ledger
+            .on_service_ready(kind, was_restart, Instant::now())
+        {
+            control.send(command.to_control())?;
         }
         Ok(())
     }
@@ -456,6 +460,7 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
             state: SvcState::NotStarted,
             policy: RestartPolicy::new(&config.supervisor),
             started: Instant::now(),
+            ready_since: None,
             restarts: 0,
             last_error: Arc::new(Mutex::new(String::new())),
             stderr_forwarder: None,

@@ -46,6 +46,8 @@ pub(super) struct Service {
     pub(super) state: SvcState,
     pub(super) policy: RestartPolicy,
     pub(super) started: Instant,
+    /// When the running process announced it was ready.
+    pub(super) ready_since: Option<Instant>,
     pub(super) restarts: u64,
     /// Last error line the service printed (shown when it is given up on).
     pub(super) last_error: Arc<Mutex<String>>,
@@ -220,6 +222,7 @@ impl Supervisor {
                     since: Instant::now(),
                 };
                 svc.started = Instant::now();
+                svc.ready_since = None;
             }
             Err(e) => {
                 svc.state = SvcState::Failed {
@@ -307,7 +310,11 @@ impl Supervisor {
                 );
                 continue;
             }
-            match svc.policy.on_death(now.duration_since(svc.started)) {
+            let ready_for = svc.ready_since.map(|r| now.duration_since(r));
+            match svc
+                .policy
+                .on_death(now.duration_since(svc.started), ready_for)
+            {
                 RestartDecision::RestartAfter(delay) => {
                     tracing::warn!(
                         pid,
@@ -320,9 +327,10 @@ impl Supervisor {
                     run_dir::log_restart(
                         &self.run_dir,
                         &format!(
-                            "{} pid {pid} {how} next_seq {}",
+                            "{} pid {pid} {how} next_seq {} at_ns {}",
                             kind.as_str(),
-                            self.ledger.next_seq()
+                            self.ledger.next_seq(),
+                            pipeline::clock::now_ns()
                         ),
                     )?;
                 }

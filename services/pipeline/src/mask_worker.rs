@@ -109,9 +109,6 @@ struct Worker {
     /// said once at the end instead of a warning per frame.
     not_held: u64,
     published: u64,
-    /// Frames no worker could take ([`Unavailable`]).
-    unavailable: u64,
-    realtime: bool,
 }
 
 /// Runs a mask worker until SIGTERM.
@@ -139,8 +136,6 @@ pub fn run(ctx: ServiceContext, role: MaskSource, model: Box<dyn MaskModel>) -> 
         keep_on_arrival: VecDeque::new(),
         not_held: 0,
         published: 0,
-        unavailable: 0,
-        realtime: ctx.config.run.mode.is_realtime(),
     };
     while wait(&ws, Duration::from_secs(1))? != Wake::Terminate {
         for r in routes.drain()? {
@@ -286,11 +281,12 @@ impl Worker {
                 route: &route,
                 sample,
                 previous,
-                realtime: self.realtime,
+                realtime: self.queue.mode().is_realtime(),
             };
-            match publish_masks(out, &mut *self.model, made)? {
-                Published::Masks => self.published += 1,
-                Published::Unavailable => self.unavailable += 1,
+            // Frames no worker could take are counted by the model that
+            // said so (the remote link's summary).
+            if publish_masks(out, &mut *self.model, made)? {
+                self.published += 1;
             }
         }
     }
@@ -301,12 +297,6 @@ impl Worker {
         tracing::info!("{role}: masks published: {}", self.published);
         if let Some(summary) = self.model.summary() {
             tracing::info!("{role}: {summary}");
-        }
-        if self.unavailable > 0 {
-            tracing::info!(
-                "{role}: {} routed frames went without its masks: no worker could take them",
-                self.unavailable
-            );
         }
         if self.not_held > 0 {
             tracing::info!(
@@ -352,19 +342,13 @@ struct MaskJob<'a> {
     realtime: bool,
 }
 
-/// What [`publish_masks`] published.
-enum Published {
-    /// Masks (or a failure: the frame goes unmasked).
-    Masks,
-    /// No worker could take the frame ([`Unavailable`]).
-    Unavailable,
-}
-
+/// Makes and publishes the masks of `job`; false when no worker could take
+/// the frame ([`Unavailable`]).
 fn publish_masks(
     out: &crate::transport::Sender<[u8], MasksHeader>,
     model: &mut dyn MaskModel,
     job: MaskJob,
-) -> Result<Published> {
+) -> Result<bool> {
     let MaskJob {
         role,
         route,
@@ -384,21 +368,20 @@ fn publish_masks(
     header.stamps = route.stamps;
     header.stamps.masks_start_ns = start_ns;
     let mut out_sample = out.loan(fh.width as usize * fh.height as usize)?;
-    let mut outcome = Published::Masks;
+    // Masks (or a failure: the frame goes unmasked) rather than "no worker
+    // could take it" ([`Unavailable`]).
+    let mut masked = true;
     let result = FrameView::new(fh, sample.payload())
         .and_then(|frame| model.infer_after(&frame, previous.as_ref(), out_sample.payload_mut()));
     match result {
         Ok(instances) => {
-            let n = instances.len().min(MAX_INSTANCES);
-            if instances.len() > MAX_INSTANCES {
+            if header.set_instances(&instances) < instances.len() {
                 tracing::warn!(
                     seq = route.seq,
                     found = instances.len(),
                     "keeping the first {MAX_INSTANCES} instances"
                 );
             }
-            header.instances[..n].copy_from_slice(&instances[..n]);
-            header.num_instances = n as u32;
             if model.wants_segment() {
                 header.flags |= mask_flags::SEGMENT_WANTED;
             }
@@ -410,12 +393,12 @@ fn publish_masks(
                 // The propagator carries masks; the segmenter is free again.
                 drop(out_sample);
                 publish_gone(out, role, route, mask_flags::UNAVAILABLE)?;
-                return Ok(Published::Unavailable);
+                return Ok(false);
             }
             // Lockstep: the frame goes on unmasked, as after a failure.
             out_sample.payload_mut().fill(0);
             header.flags |= mask_flags::FAILED | mask_flags::UNAVAILABLE;
-            outcome = Published::Unavailable;
+            masked = false;
         }
         Err(e) => {
             // The frame goes on unmasked rather than stalling the pipeline.
@@ -429,7 +412,7 @@ fn publish_masks(
     header.stamps.masks_done_ns = done;
     *out_sample.user_header_mut() = header;
     out.publish(out_sample)?;
-    Ok(outcome)
+    Ok(masked)
 }
 
 /// A model that finds no objects: every frame gets an empty label image,

@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Result};
 use pipeline::mask_worker::MaskModel;
-use shared_types::{MaskSource, MasksHeader, MAX_INSTANCES};
+use shared_types::{MaskSource, MasksHeader};
 use zenoh::query::Query;
 use zenoh::{Session, Wait};
 
@@ -99,16 +99,14 @@ fn answer(query: &Query, run: &str, model: &mut dyn MaskModel, stats: &mut Serve
     let inference_ns = start.elapsed().as_nanos() as u64;
     let outcome = match result {
         Ok(instances) => {
-            let n = instances.len().min(MAX_INSTANCES);
             let mut header = MasksHeader {
                 seq,
                 source: MaskSource::Segmenter as u32,
                 width: w,
                 height: h,
-                num_instances: n as u32,
                 ..Default::default()
             };
-            header.instances[..n].copy_from_slice(&instances[..n]);
+            let n = header.set_instances(&instances);
             // Labels past the instances kept name nothing.
             labels
                 .iter_mut()

@@ -439,12 +439,10 @@ fn decode_masks(m: &WireMasks, width: u32, height: u32) -> Result<(MasksHeader, 
         source: m.source,
         width,
         height,
-        num_instances: n as u32,
         ..Default::default()
     };
-    for (slot, i) in header.instances.iter_mut().zip(&m.instances) {
-        *slot = i.into();
-    }
+    let instances: Vec<Instance> = m.instances.iter().map(Into::into).collect();
+    header.set_instances(&instances);
     Ok((header, labels))
 }
 

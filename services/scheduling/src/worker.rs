@@ -42,6 +42,11 @@ impl<R> WorkQueue<R> {
         }
     }
 
+    /// The run's clock mode.
+    pub fn mode(&self) -> ClockMode {
+        self.mode
+    }
+
     /// Routes waiting.
     pub fn len(&self) -> usize {
         self.routes.len()

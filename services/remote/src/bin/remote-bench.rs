@@ -23,7 +23,7 @@ use pipeline::views::{FrameView, MasksView};
 use remote::link::RemoteSegmenter;
 use remote::relay::Relay;
 use remote::wire::{encode_request, ImageEncoding};
-use shared_types::{FrameHeader, MaskSource, MasksHeader, MAX_INSTANCES};
+use shared_types::{FrameHeader, MaskSource, MasksHeader};
 
 #[derive(Debug, Parser)]
 #[command(about = "Remote segmenter: keyframe round trip, loopback and through a delaying relay")]
@@ -215,16 +215,14 @@ fn run_frames(
         if k >= 3 {
             each(t.elapsed().as_secs_f64() * 1e3);
         }
-        let n = instances.len().min(MAX_INSTANCES);
         let mut h = MasksHeader {
             seq: f.header.seq,
             source: MaskSource::Segmenter as u32,
             width: f.header.width,
             height: f.header.height,
-            num_instances: n as u32,
             ..Default::default()
         };
-        h.instances[..n].copy_from_slice(&instances[..n]);
+        h.set_instances(&instances);
         previous_header = Some(h);
         std::mem::swap(&mut labels, &mut previous);
     }

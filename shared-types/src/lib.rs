@@ -452,6 +452,10 @@ pub enum ServiceKind {
     /// The ROS 2 bridge: optional, off the frame path (not in [`Self::ALL`],
     /// the services every run has).
     Bridge = 5,
+    /// The warm standby SLAM (`services.slam.standby`): optional, holds the
+    /// newest frames without tracking them until it is promoted, then is
+    /// the SLAM.
+    SlamStandby = 6,
 }
 
 impl ServiceKind {
@@ -468,6 +472,7 @@ impl ServiceKind {
             3 => Some(Self::Propagator),
             4 => Some(Self::Slam),
             5 => Some(Self::Bridge),
+            6 => Some(Self::SlamStandby),
             _ => None,
         }
     }
@@ -479,6 +484,7 @@ impl ServiceKind {
             Self::Propagator => "propagator",
             Self::Slam => "slam",
             Self::Bridge => "bridge",
+            Self::SlamStandby => "slam-standby",
         }
     }
 }
@@ -545,7 +551,10 @@ pub struct Lifecycle {
 pub struct Control {
     /// A [`control_kind`] value.
     pub kind: u32,
-    /// The frame the command is about (`REPLAY`).
+    /// The process the command is for (`PROMOTE`: the standby SLAM's pid).
+    pub pid: u32,
+    /// The frame the command is about (`REPLAY`: the frame; `PROMOTE`: the
+    /// first frame the promoted SLAM may track).
     pub seq: u64,
 }
 
@@ -556,6 +565,9 @@ pub mod control_kind {
     /// Real time: the SLAM restarted; stop waiting for the Tracks of the
     /// frames published before it.
     pub const FORGET_BACKLOG: u32 = 2;
+    /// To the standby SLAM with pid `pid`: the active one died; track from
+    /// frame `seq` on.
+    pub const PROMOTE: u32 = 3;
 }
 
 /// User header of a map snapshot (slam -> bridge, throttled): the map as

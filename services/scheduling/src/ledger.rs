@@ -191,6 +191,15 @@ pub struct Tracked<T> {
     pub frame: Option<Pending<T>>,
 }
 
+/// What a standby SLAM's promotion means ([`Ledger::on_slam_promoted`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Promotion {
+    /// The first frame the promoted SLAM may track.
+    pub from: u64,
+    /// What the reader is told.
+    pub reader: Option<SourceCommand>,
+}
+
 /// Which stage holds the oldest unrecorded frame of a stalled run.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Stall {
@@ -218,6 +227,9 @@ pub struct Ledger<T> {
     /// When a frame was last recorded (or a service last came up): the
     /// watchdog's clock.
     last_progress: Instant,
+    /// The newest frame SLAM answered for (a Track) in this supervisor's
+    /// life.
+    newest_answered: Option<u64>,
 }
 
 impl<T: Clone> Ledger<T> {
@@ -243,6 +255,7 @@ impl<T: Clone> Ledger<T> {
             total: None,
             end_seen_at: None,
             last_progress: now,
+            newest_answered: None,
         }
     }
 
@@ -448,6 +461,7 @@ impl<T: Clone> Ledger<T> {
         next_needs_keyframe: bool,
         now: Instant,
     ) -> Option<Tracked<T>> {
+        self.newest_answered = self.newest_answered.max(Some(seq));
         if self.recorded.contains(seq) {
             return None;
         }
@@ -579,8 +593,13 @@ impl<T: Clone> Ledger<T> {
         }
         match self.mode {
             ClockMode::Lockstep => {
-                let on_frame_path =
-                    !matches!(kind, ServiceKind::CameraReader | ServiceKind::Bridge);
+                // The reader starts from it itself; the bridge is off the
+                // frame path, and a standby SLAM holds frames without
+                // tracking them.
+                let on_frame_path = matches!(
+                    kind,
+                    ServiceKind::Segmenter | ServiceKind::Propagator | ServiceKind::Slam
+                );
                 on_frame_path.then(|| SourceCommand::Replay(self.next_seq()))
             }
             ClockMode::Realtime if kind == ServiceKind::Slam => {
@@ -593,6 +612,18 @@ impl<T: Clone> Ledger<T> {
                 Some(SourceCommand::ForgetBacklog)
             }
             ClockMode::Realtime => None,
+        }
+    }
+
+    /// The active SLAM died and the warm standby takes over (the
+    /// supervisor recorded the dead one's last Tracks first): it tracks
+    /// from the frame after the newest one SLAM answered, so the two never
+    /// answer for the same frame; the reader is told as after a restart
+    /// ([`Self::on_service_ready`]: the standby may not hold every frame).
+    pub fn on_slam_promoted(&mut self, now: Instant) -> Promotion {
+        Promotion {
+            from: self.newest_answered.map_or(0, |s| s + 1),
+            reader: self.on_service_ready(ServiceKind::Slam, true, now),
         }
     }
 

@@ -71,10 +71,12 @@ impl SourceCommand {
         match self {
             Self::Replay(seq) => Control {
                 kind: control_kind::REPLAY,
+                pid: 0,
                 seq,
             },
             Self::ForgetBacklog => Control {
                 kind: control_kind::FORGET_BACKLOG,
+                pid: 0,
                 seq: 0,
             },
         }

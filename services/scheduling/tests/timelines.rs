@@ -443,6 +443,33 @@ fn a_restarted_slam_frees_the_places_of_the_frames_routed_before_it() {
     assert_eq!(track(&mut l, 3, false, &c, 90), [1, 2]);
 }
 
+/// A promoted standby tracks from the frame after the newest answered one
+/// (a duplicate or skipped answer counts: SLAM answered it), and the reader
+/// is told as after a SLAM restart.
+#[test]
+fn a_promoted_standby_tracks_after_the_newest_answered_frame() {
+    let c = Clock::new();
+    let mut l = ledger(ClockMode::Realtime, &c);
+    let p = l.on_slam_promoted(c.at(0));
+    assert_eq!(p.from, 0, "nothing answered yet");
+    arrive(&mut l, 0, &c, 0);
+    routes(&mut l, &c, 0);
+    l.on_masks(0, MaskSource::Segmenter, false);
+    track(&mut l, 0, false, &c, 1);
+    arrive(&mut l, 1, &c, 2);
+    arrive(&mut l, 2, &c, 3);
+    routes(&mut l, &c, 3);
+    l.on_track(2, true, false, c.at(4)).unwrap();
+    let p = l.on_slam_promoted(c.at(5));
+    assert_eq!(p.from, 3);
+    assert_eq!(p.reader, Some(SourceCommand::ForgetBacklog));
+    let mut lockstep = ledger(ClockMode::Lockstep, &c);
+    arrive(&mut lockstep, 0, &c, 0);
+    routes(&mut lockstep, &c, 0);
+    let p = lockstep.on_slam_promoted(c.at(1));
+    assert_eq!((p.from, p.reader), (0, Some(SourceCommand::Replay(0))));
+}
+
 #[test]
 fn a_frame_reaching_the_supervisor_after_a_newer_track_is_dropped_in_real_time() {
     let c = Clock::new();

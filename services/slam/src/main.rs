@@ -21,8 +21,8 @@ use pipeline::views::{FrameView, MasksView};
 use scheduling::{tracking, KeyframeFacts};
 use shared_types::names::Topic;
 use shared_types::{
-    frame_flags, mask_flags, FrameHeader, MaskSource, MasksHeader, Pose, Route, RouteKind,
-    ServiceKind, StageStamps, Track, TrackState,
+    control_kind, frame_flags, mask_flags, Control, FrameHeader, MaskSource, MasksHeader, Pose,
+    Route, RouteKind, ServiceKind, StageStamps, Track, TrackState,
 };
 use slam::bridge_link::BridgeLink;
 use slam::rgbd_tracker::{MapFiles, RgbdTracker};
@@ -56,6 +56,11 @@ struct Args {
     /// here (TUM format).
     #[arg(long)]
     corrected_trajectory_out: Option<std::path::PathBuf>,
+    /// Start as the warm standby: hold the newest frames, masks and routes
+    /// without tracking them until the supervisor promotes this process
+    /// (then read the checkpoint and the resume poses, and track).
+    #[arg(long)]
+    standby: bool,
 }
 
 /// What the service writes besides its messages.
@@ -77,9 +82,12 @@ fn main() -> ExitCode {
         resume_poses: args.resume_poses.clone(),
         ..MapFiles::default()
     };
-    run_service(ServiceKind::Slam, &args.service, move |ctx| {
-        run(ctx, &outputs, files)
-    })
+    let kind = if args.standby {
+        ServiceKind::SlamStandby
+    } else {
+        ServiceKind::Slam
+    };
+    run_service(kind, &args.service, move |ctx| run(ctx, &outputs, files))
 }
 
 fn tracker_from_config(ctx: &ServiceContext, files: MapFiles) -> Result<Box<dyn Tracker>> {
@@ -120,6 +128,7 @@ struct HeldFrame {
 }
 
 /// What the service remembers between wake-ups.
+#[derive(Default)]
 struct State {
     frames: VecDeque<HeldFrame>,
     masks: VecDeque<MasksSample>,
@@ -159,53 +168,76 @@ const YOUNG_MAP_KEYFRAMES: u32 = slam_core::system::YOUNG_MAP_KEYFRAMES as u32;
 
 fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
     let loops_out = outputs.loops.as_deref();
-    let mut tracker = tracker_from_config(&ctx, files)?;
+    let standby = ctx.kind == ServiceKind::SlamStandby;
+    // A standby reads the map when promoted (the newest checkpoint then).
+    let mut tracker = (!standby)
+        .then(|| tracker_from_config(&ctx, files.clone()))
+        .transpose()?;
     let frames = ctx.transport.slice_receiver::<FrameHeader>(Topic::Frames)?;
     let masks = ctx.transport.slice_receiver::<MasksHeader>(Topic::Masks)?;
     let routes = ctx.transport.receiver::<Route>(Topic::Routes)?;
     let tracks = ctx.transport.sender::<Track>(Topic::Tracks)?;
     let poses = ctx.transport.sender::<Pose>(Topic::Poses)?;
-    let (mut bridge, commands) = BridgeLink::open(&ctx)?.unzip();
+    let control = standby
+        .then(|| ctx.transport.receiver::<Control>(Topic::Control))
+        .transpose()?;
     let ws = waitset()?;
     let _a = attach(&ws, &frames)?;
     let _b = attach(&ws, &masks)?;
     let _c = attach(&ws, &routes)?;
+    let control_attached = control.as_ref().map(|c| attach(&ws, c)).transpose()?;
+    let max_frames = qos(Topic::Frames).borrowed - 1;
+    let max_masks = qos(Topic::Masks).borrowed - 1;
+    let mut st = State::default();
+    if standby {
+        ctx.announce_ready()?;
+        tracing::info!("slam standing by");
+        let ports = Ports {
+            frames: &frames,
+            masks: &masks,
+            routes: &routes,
+            tracks: &tracks,
+        };
+        let Some(from) = stand_by(
+            &ws,
+            &ports,
+            control.as_ref(),
+            &mut st,
+            max_frames,
+            max_masks,
+        )?
+        else {
+            return Ok(()); // stopped while standing by: nothing to write
+        };
+        // The supervisor's later commands are the reader's: left unread
+        // they would wake this loop for ever.
+        drop(control_attached);
+        drop(control);
+        // The promoted process goes on from the newest checkpoint and the
+        // last poses the dead one gave (the supervisor wrote them first).
+        let started = std::time::Instant::now();
+        tracker = Some(tracker_from_config(&ctx, files)?);
+        st.frames.retain(|f| f.sample.user_header().seq >= from);
+        st.masks.retain(|m| m.user_header().seq >= from);
+        st.routes.retain(|&s, _| s >= from);
+        tracing::info!(
+            from,
+            held = st.frames.len(),
+            map_ms = started.elapsed().as_millis() as u64,
+            "promoted: the standby is the SLAM now"
+        );
+    }
+    let mut tracker = tracker.expect("built above or at promotion");
+    let (mut bridge, commands) = BridgeLink::open(&ctx)?.unzip();
     let _d = commands.as_ref().map(|c| attach(&ws, c)).transpose()?;
-    ctx.announce_ready()?;
+    if !standby {
+        ctx.announce_ready()?;
+    }
     tracing::info!("slam ready with tracker '{}'", tracker.name());
 
     let mode = ctx.config.run.mode;
-    let max_frames = qos(Topic::Frames).borrowed - 1;
-    let max_masks = qos(Topic::Masks).borrowed - 1;
-    let mut st = State {
-        frames: VecDeque::new(),
-        masks: VecDeque::new(),
-        routes: HashMap::new(),
-        last: None,
-        pending_keyframe: None,
-        last_segmented: None,
-        segmented_empty: false,
-        last_moved: None,
-    };
     loop {
-        // A map being saved for the bridge is answered soon after it is
-        // written.
-        let patience = match &bridge {
-            Some(b) if b.busy() => Duration::from_millis(50),
-            _ => Duration::from_secs(1),
-        };
-        if wait(&ws, patience)? == Wake::Terminate {
-            if let Some(b) = &mut bridge {
-                b.finish()?;
-            }
-            return finish(&mut *tracker, outputs);
-        }
-        take_frames(&mut st, &frames, &tracks, max_frames)?;
-        take_masks(&mut st, &masks, &mut *tracker, max_masks)?;
-        for r in routes.drain()? {
-            st.routes.insert(r.seq, r);
-        }
-
+        // Tracks the frames it holds first (a promoted standby holds some).
         while let Some(track) = track_next_ready(&mut st, &mut *tracker, mode)? {
             tracks.send(track)?;
             poses.send(Pose::of(&track))?;
@@ -225,6 +257,71 @@ fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
                 );
                 tracker.complete_keyframe(None);
                 st.pending_keyframe = None;
+            }
+        }
+        // A map being saved for the bridge is answered soon after it is
+        // written.
+        let patience = match &bridge {
+            Some(b) if b.busy() => Duration::from_millis(50),
+            _ => Duration::from_secs(1),
+        };
+        if wait(&ws, patience)? == Wake::Terminate {
+            if let Some(b) = &mut bridge {
+                b.finish()?;
+            }
+            return finish(&mut *tracker, outputs);
+        }
+        take_frames(&mut st, &frames, &tracks, max_frames)?;
+        take_masks(&mut st, &masks, Some(&mut *tracker), max_masks)?;
+        for r in routes.drain()? {
+            st.routes.insert(r.seq, r);
+        }
+    }
+}
+
+/// The receivers a standby keeps up to date (and the Tracks sender a
+/// replayed frame is answered on).
+struct Ports<'a> {
+    frames: &'a pipeline::transport::Receiver<[u8], FrameHeader>,
+    masks: &'a pipeline::transport::Receiver<[u8], MasksHeader>,
+    routes: &'a pipeline::transport::Receiver<Route, ()>,
+    tracks: &'a pipeline::transport::Sender<Track, ()>,
+}
+
+/// Routes a standby keeps: those of the newest frames (a route may come
+/// before its frame).
+const STANDBY_ROUTES: usize = 16;
+
+/// The warm standby: holds the newest frames, masks and routes (bounded as
+/// the active SLAM holds them) without tracking, until the supervisor's
+/// PROMOTE for this process; returns the first frame it may track (None:
+/// stopped while standing by).
+fn stand_by(
+    ws: &pipeline::transport::Waiter,
+    ports: &Ports,
+    control: Option<&pipeline::transport::Receiver<Control, ()>>,
+    st: &mut State,
+    max_frames: usize,
+    max_masks: usize,
+) -> Result<Option<u64>> {
+    let control = control.expect("a standby listens to the supervisor");
+    let pid = std::process::id();
+    loop {
+        if wait(ws, Duration::from_secs(1))? == Wake::Terminate {
+            return Ok(None);
+        }
+        take_frames(st, ports.frames, ports.tracks, max_frames)?;
+        take_masks(st, ports.masks, None, max_masks)?;
+        for r in ports.routes.drain()? {
+            st.routes.insert(r.seq, r);
+        }
+        while st.routes.len() > STANDBY_ROUTES {
+            let oldest = *st.routes.keys().min().expect("not empty");
+            st.routes.remove(&oldest);
+        }
+        for c in control.drain()? {
+            if c.kind == control_kind::PROMOTE && c.pid == pid {
+                return Ok(Some(c.seq));
             }
         }
     }
@@ -288,11 +385,11 @@ fn take_frames(
 
 /// The masks published since the last wake-up, held (at most `max`; a
 /// frame's segmenter masks beat its propagated ones); segmenter masks
-/// complete the keyframe waiting for them.
+/// complete the keyframe waiting for them (`tracker`: None for a standby).
 fn take_masks(
     st: &mut State,
     masks: &pipeline::transport::Receiver<[u8], MasksHeader>,
-    tracker: &mut dyn Tracker,
+    mut tracker: Option<&mut dyn Tracker>,
     max_masks: usize,
 ) -> Result<()> {
     masks.clear_wakeups();
@@ -317,10 +414,11 @@ fn take_masks(
                 st.segmented_empty = header.num_instances == 0 && !header.has(mask_flags::FAILED);
                 st.last_segmented = Some(seq);
             }
-            if let Some(waiting) = st
+            let waiting = st
                 .pending_keyframe
-                .filter(|&k| tracking::completes_waiting_keyframe(k, seq))
-            {
+                .filter(|&k| tracking::completes_waiting_keyframe(k, seq));
+            // A standby has no tracker and no keyframe waiting.
+            if let (Some(waiting), Some(tracker)) = (waiting, tracker.as_deref_mut()) {
                 // The pending keyframe's own masks (or a newer frame's:
                 // its own will not come) complete it.
                 let own = waiting == seq;

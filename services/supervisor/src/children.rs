@@ -114,6 +114,8 @@ pub fn service_program(config: &PipelineConfig, kind: ServiceKind) -> Result<Vec
         ServiceKind::Segmenter if config.services.segmenter.location == "remote" => {
             (config.process(kind).command, "mask-link", None)
         }
+        // The standby is the SLAM binary, told to stand by.
+        ServiceKind::SlamStandby => (config.process(kind).command, "slam", Some("--standby")),
         _ => (config.process(kind).command, kind.as_str(), None),
     };
     if !cmd.is_empty() {

@@ -744,7 +744,7 @@ mod tests {
         (p.min_predicted_iou, p.min_area_ratio) = (Some(0.5), Some(0.2));
         p.prompt_points = Some(3);
         (s.slam.seen_log, s.slam.load_map, s.slam.save_map) = (x(), x(), x());
-        s.slam.nice = Some(0);
+        (s.slam.nice, s.slam.standby) = (Some(0), Some(true));
         let mut keys = Vec::new();
         leaf_keys(&toml::Table::try_from(&full).unwrap(), "", &mut keys);
         keys

@@ -14,10 +14,13 @@
 //! and on (publishing to the Zenoh router at ENDPOINT), the two alternated
 //! so that both see the same machine (`just bench-realtime-bridge`).
 //!
-//! A kill row (`--slam-kills N`; `just bench-realtime` asks for 5): at 30 fps without load, the
-//! SLAM process SIGKILLed N times a run, 1.5 s apart; it prints the frames
-//! without a pose around each kill and the time from the death (as the
-//! supervisor saw it) to the next pose.
+//! Kill rows (`--slam-kills N`; `just bench-realtime` asks for 5): at 30
+//! fps without load, the SLAM process SIGKILLed N times a run, 1.5 s apart,
+//! without and with the warm standby (`services.slam.standby`, the two
+//! alternated); they print the frames without a pose around each kill, the
+//! time from the death (as the supervisor saw it) to the next pose, and the
+//! CPU share and RSS of the SLAM and of its standby (sampled before the
+//! first kill).
 //!
 //! `realtime-bench [DATASET] [--runs N] [--load N] [--only 30:0,60:2] [--no-lockstep] [--bridge ENDPOINT] [--slam-kills N] [--out FILE]`
 
@@ -107,7 +110,54 @@ struct RunFigures {
     frames_without_pose: Vec<u64>,
     /// Per SLAM death: from the death seen to the next pose, ms.
     death_to_pose_ms: Vec<f64>,
+    /// The run had the warm standby SLAM.
+    standby: bool,
+    /// Before the first kill: the active SLAM's and the standby's CPU
+    /// share of one core over their lives, and RSS (MB).
+    slam_cost: Option<ProcessCost>,
+    standby_cost: Option<ProcessCost>,
     run_dir: PathBuf,
+}
+
+/// A process's CPU share of one core since it started, and its RSS.
+#[derive(Debug, Clone, Copy, Serialize)]
+struct ProcessCost {
+    cpu_pct: f64,
+    rss_mb: f64,
+}
+
+impl ProcessCost {
+    /// From /proc (None: the process is gone).
+    fn of(pid: u32) -> Option<Self> {
+        let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+        // The fields after the command name: state is field 3, utime 14,
+        // stime 15, starttime 22.
+        let rest: Vec<&str> = stat.rsplit_once(')')?.1.split_whitespace().collect();
+        let field = |n: usize| rest.get(n - 3)?.parse::<f64>().ok();
+        // SAFETY: sysconf has no preconditions.
+        let tick = unsafe { libc::sysconf(libc::_SC_CLK_TCK) } as f64;
+        let uptime: f64 = std::fs::read_to_string("/proc/uptime")
+            .ok()?
+            .split_whitespace()
+            .next()?
+            .parse()
+            .ok()?;
+        let alive_s = uptime - field(22)? / tick;
+        let cpu_s = (field(14)? + field(15)?) / tick;
+        let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+        let rss_kb: f64 = status
+            .lines()
+            .find_map(|l| l.strip_prefix("VmRSS:"))?
+            .trim()
+            .trim_end_matches("kB")
+            .trim()
+            .parse()
+            .ok()?;
+        Some(Self {
+            cpu_pct: 100.0 * cpu_s / alive_s.max(1e-3),
+            rss_mb: rss_kb / 1024.0,
+        })
+    }
 }
 
 #[derive(Debug, Serialize)]
@@ -216,26 +266,39 @@ fn main() -> Result<()> {
     let mut kill_runs = Vec::new();
     let kill_row_runs = if args.slam_kills > 0 { args.runs } else { 0 };
     for i in 0..kill_row_runs {
-        let id = format!("rtb-{batch}-30fps-slamkills-{i}");
-        let kills = args.slam_kills;
-        let f = run_once(
-            &base,
-            &dataset,
-            &args.output_dir,
-            &id,
-            |c| {
-                c.run.mode = ClockMode::Realtime;
-                c.run.speed = 1.0;
-            },
-            kills,
-        )?;
-        eprintln!(
-            "30 fps, {kills} SLAM kills: frames without a pose per kill {:?}, death to next pose {:?} ms, ATE {}",
-            f.frames_without_pose,
-            f.death_to_pose_ms.iter().map(|m| m.round() as i64).collect::<Vec<_>>(),
-            fmt_m(f.ate_rmse_m)
-        );
-        kill_runs.push(f);
+        // Standby off and on alternate which goes first.
+        let arms = if i % 2 == 0 {
+            [false, true]
+        } else {
+            [true, false]
+        };
+        for standby in arms {
+            let id = format!("rtb-{batch}-kills{i}{}", if standby { "-sb" } else { "" });
+            let kills = args.slam_kills;
+            let f = run_once(
+                &base,
+                &dataset,
+                &args.output_dir,
+                &id,
+                |c| {
+                    c.run.mode = ClockMode::Realtime;
+                    c.run.speed = 1.0;
+                    c.services.slam.standby = Some(standby);
+                },
+                kills,
+            )?;
+            eprintln!(
+                "30 fps, {kills} SLAM kills, standby {}: frames without a pose per kill {:?}, death to next pose {:?} ms, ATE {}",
+                if standby { "on" } else { "off" },
+                f.frames_without_pose,
+                f.death_to_pose_ms
+                    .iter()
+                    .map(|m| m.round() as i64)
+                    .collect::<Vec<_>>(),
+                fmt_m(f.ate_rmse_m)
+            );
+            kill_runs.push(f);
+        }
     }
     println!(
         "real time on {} ({} runs per condition; figures: median, worst run in brackets)",
@@ -297,8 +360,15 @@ fn main() -> Result<()> {
             fmt_m(lockstep_ate)
         );
     }
-    if !kill_runs.is_empty() {
-        print_kill_row(&kill_runs);
+    for standby in [false, true] {
+        let arm: Vec<RunFigures> = kill_runs
+            .iter()
+            .filter(|r| r.standby == standby)
+            .cloned()
+            .collect();
+        if !arm.is_empty() {
+            print_kill_row(&arm);
+        }
     }
     runs.extend(kill_runs);
     if let Some(parent) = args.out.parent() {
@@ -338,7 +408,8 @@ fn run_once(
     });
     let summary = execute(&dir).with_context(|| format!("run {}", dir.display()));
     done.store(true, Ordering::Relaxed);
-    let killed = killer.map_or(0, |k| k.join().unwrap_or(0));
+    let kills = killer.and_then(|k| k.join().ok()).unwrap_or_default();
+    let killed = kills.killed;
     let summary = summary?;
     let (_, rows) = FrameLog::open(&dir)?;
     let outages = supervisor::outages::slam_outages(&dir, &rows);
@@ -356,6 +427,9 @@ fn run_once(
     f.end_to_end_p99_ms = stage("end_to_end", true);
     f.ate_rmse_m = report.and_then(|r| r.eval.as_ref()).map(|e| e.ate_rmse_m);
     f.slam_kills = killed;
+    f.standby = cfg.services.slam.has_standby(cfg.run.mode);
+    f.slam_cost = kills.slam_cost;
+    f.standby_cost = kills.standby_cost;
     f.frames_without_pose = outages
         .iter()
         .filter_map(|o| o.frames_without_pose)
@@ -367,21 +441,37 @@ fn run_once(
     Ok(f)
 }
 
+/// What [`kill_slam`] did and saw.
+#[derive(Debug, Default)]
+struct Kills {
+    killed: usize,
+    /// The SLAM's and the standby's cost just before the first kill.
+    slam_cost: Option<ProcessCost>,
+    standby_cost: Option<ProcessCost>,
+}
+
 /// SIGKILLs the run's SLAM process `n` times, 1.5 s apart, the first once
 /// 40 frames are recorded (each time the process is ready and not one
-/// already killed); returns how many kills happened before `done`.
-fn kill_slam(dir: &Path, n: usize, done: &AtomicBool) -> usize {
+/// already killed), until `done`.
+fn kill_slam(dir: &Path, n: usize, done: &AtomicBool) -> Kills {
+    let mut kills = Kills::default();
     let mut killed: Vec<u32> = Vec::new();
     let rows = || std::fs::read_to_string(dir.join("frames.csv")).map_or(0, |t| t.lines().count());
-    while !done.load(Ordering::Relaxed) && killed.len() < n {
-        let slam = run_dir::read_status(dir).and_then(|s| {
+    let ready = |service: &str| {
+        run_dir::read_status(dir).and_then(|s| {
             s.children
                 .into_iter()
-                .find(|c| c.service == "slam" && c.state == "ready")
+                .find(|c| c.service == service && c.state == "ready")
                 .and_then(|c| c.pid)
-        });
-        match slam {
+        })
+    };
+    while !done.load(Ordering::Relaxed) && killed.len() < n {
+        match ready("slam") {
             Some(pid) if rows() > 40 && !killed.contains(&pid) => {
+                if killed.is_empty() {
+                    kills.slam_cost = ProcessCost::of(pid);
+                    kills.standby_cost = ready("slam-standby").and_then(ProcessCost::of);
+                }
                 // SAFETY: kill(2) of the run's SLAM pid from its status file.
                 unsafe { libc::kill(pid as i32, libc::SIGKILL) };
                 killed.push(pid);
@@ -390,7 +480,8 @@ fn kill_slam(dir: &Path, n: usize, done: &AtomicBool) -> usize {
             _ => std::thread::sleep(Duration::from_millis(10)),
         }
     }
-    killed.len()
+    kills.killed = killed.len();
+    kills
 }
 
 /// The kill row: frames without a pose per SLAM kill and the time from each
@@ -414,12 +505,25 @@ fn print_kill_row(runs: &[RunFigures]) {
     };
     let mut ate: Vec<f64> = runs.iter().filter_map(|r| r.ate_rmse_m).collect();
     ate.sort_by(f64::total_cmp);
+    let cost = |pick: &dyn Fn(&RunFigures) -> Option<ProcessCost>| {
+        let mut cpu: Vec<f64> = runs.iter().filter_map(pick).map(|c| c.cpu_pct).collect();
+        let mut rss: Vec<f64> = runs.iter().filter_map(pick).map(|c| c.rss_mb).collect();
+        format!("CPU {} %, RSS {} MB", spread(&mut cpu), spread(&mut rss))
+    };
+    let standby = runs.iter().any(|r| r.standby);
     println!(
-        "SLAM kills at 30 fps: {kills} kills in {} runs; frames without a pose per kill {}; death to next pose {} ms; ATE {}",
+        "SLAM kills at 30 fps, standby {}: {kills} kills in {} runs; frames without a pose per kill {}; death to next pose {} ms; ATE {}; SLAM {}{}",
+        if standby { "on" } else { "off" },
         runs.len(),
         spread(&mut frames),
         spread(&mut ms),
-        fmt_m(ate.get(ate.len() / 2).copied())
+        fmt_m(ate.get(ate.len() / 2).copied()),
+        cost(&|r| r.slam_cost),
+        if standby {
+            format!(", standby {}", cost(&|r| r.standby_cost))
+        } else {
+            String::new()
+        }
     );
 }
 
@@ -455,6 +559,9 @@ fn figures(rows: &[FrameRow], speed: f64, run_dir: PathBuf) -> RunFigures {
         slam_kills: 0,
         frames_without_pose: Vec::new(),
         death_to_pose_ms: Vec::new(),
+        standby: false,
+        slam_cost: None,
+        standby_cost: None,
         run_dir,
     }
 }

@@ -341,8 +341,17 @@ impl Supervisor {
     /// Reaps dead services; services only fail when one dies, so what
     /// follows from it (routes around a worker given up on, a required
     /// worker's loss, a dead reader or SLAM) is decided then.
-    fn on_deaths(&mut self, routes: &pipeline::transport::Sender<Route, ()>) -> Result<()> {
-        if self.watch_children(false)? {
+    fn on_deaths(
+        &mut self,
+        routes: &pipeline::transport::Sender<Route, ()>,
+        control: &pipeline::transport::Sender<Control, ()>,
+        tracks: &pipeline::transport::Receiver<Track, ()>,
+    ) -> Result<()> {
+        let reaped = self.watch_children(false)?;
+        if let Some(standby) = reaped.promoted {
+            self.finish_promotion(standby, control, tracks)?;
+        }
+        if reaped.any {
             self.ledger.on_worker_lost();
             self.reroute_orphans(routes)?;
             if self.config.run.require_masks {
@@ -357,6 +366,48 @@ impl Supervisor {
             if let SvcState::Failed { reason } = &self.svc(kind).state {
                 self.fatal = Some(reason.clone());
             }
+        }
+        Ok(())
+    }
+}
+
+impl Supervisor {
+    /// The standby (pid `standby`) took the dead SLAM's place: the dead
+    /// one's last Tracks are recorded first, the resume poses written, then
+    /// the standby is told from which frame to track and the reader what a
+    /// SLAM restart means for it ([`Ledger::on_slam_promoted`]).
+    fn finish_promotion(
+        &mut self,
+        standby: u32,
+        control: &pipeline::transport::Sender<Control, ()>,
+        tracks: &pipeline::transport::Receiver<Track, ()>,
+    ) -> Result<()> {
+        for t in tracks.drain()? {
+            self.on_track(t)?;
+        }
+        let poses = self.run_dir.join(crate::map_files::RESUME_POSES_FILE);
+        if let Err(e) = write_tum(&poses, &self.recent_tracked.rows, |_| true) {
+            tracing::warn!("the promoted SLAM relocalises instead of resuming its motion: {e:#}");
+        }
+        let map = if crate::map_files::checkpoint(&self.run_dir).is_some() {
+            "checkpoint"
+        } else {
+            "empty"
+        };
+        let next_seq = self.ledger.next_seq();
+        if let Err(e) =
+            run_dir::log_slam_start(&self.run_dir, next_seq, &format!("{map} (standby)"))
+        {
+            tracing::warn!("cannot record the SLAM start: {e:#}");
+        }
+        let promotion = self.ledger.on_slam_promoted(Instant::now());
+        control.send(Control {
+            kind: shared_types::control_kind::PROMOTE,
+            pid: standby,
+            seq: promotion.from,
+        })?;
+        if let Some(command) = promotion.reader {
+            control.send(command.to_control())?;
         }
         Ok(())
     }
@@ -450,22 +501,7 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
         }
         run_dir::log_resume(&run_dir, last.seq + 1)?;
     }
-    let mut services = Vec::new();
-    let bridge = config.bridge.enabled.then_some(ServiceKind::Bridge);
-    for kind in ServiceKind::ALL.into_iter().chain(bridge) {
-        services.push(Service {
-            kind,
-            program: service_program(&config, kind)?,
-            child: None,
-            state: SvcState::NotStarted,
-            policy: RestartPolicy::new(&config.supervisor),
-            started: Instant::now(),
-            ready_since: None,
-            restarts: 0,
-            last_error: Arc::new(Mutex::new(String::new())),
-            stderr_forwarder: None,
-        });
-    }
+    let services = services_of(&config)?;
     let mut sup = Supervisor {
         names: names.clone(),
         run_dir: run_dir.clone(),
@@ -525,6 +561,36 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
         bail!("{fatal}");
     }
     Ok(summary)
+}
+
+/// The run's services: every kind a run has, the bridge when it is
+/// enabled, the standby SLAM when the run has one; none started yet.
+fn services_of(config: &PipelineConfig) -> Result<Vec<Service>> {
+    let bridge = config.bridge.enabled.then_some(ServiceKind::Bridge);
+    let standby = config
+        .services
+        .slam
+        .has_standby(config.run.mode)
+        .then_some(ServiceKind::SlamStandby);
+    ServiceKind::ALL
+        .into_iter()
+        .chain(bridge)
+        .chain(standby)
+        .map(|kind| {
+            Ok(Service {
+                kind,
+                program: service_program(config, kind)?,
+                child: None,
+                state: SvcState::NotStarted,
+                policy: RestartPolicy::new(&config.supervisor),
+                started: Instant::now(),
+                ready_since: None,
+                restarts: 0,
+                last_error: Arc::new(Mutex::new(String::new())),
+                stderr_forwarder: None,
+            })
+        })
+        .collect()
 }
 
 /// Every process of the run is gone: nothing of it may stay in /dev/shm.
@@ -631,7 +697,7 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
         }
         sup.route_ready(&routes)?;
         // Services only fail when one dies: what follows from it is decided then.
-        sup.on_deaths(&routes)?;
+        sup.on_deaths(&routes, &control, &tracks)?;
         sup.check_stall();
         if sup.fatal.is_some() {
             break;

@@ -21,6 +21,14 @@ use crate::children::{
 use crate::outputs::write_tum;
 use crate::run_dir::{self, ChildStatus, Status};
 
+/// What [`Supervisor::watch_children`] found.
+pub(super) struct Reaped {
+    /// A service died.
+    pub(super) any: bool,
+    /// The standby (its pid) took the dead SLAM's place.
+    pub(super) promoted: Option<u32>,
+}
+
 #[derive(Debug, Clone, PartialEq)]
 pub(super) enum SvcState {
     NotStarted,
@@ -173,7 +181,7 @@ impl Supervisor {
             args.push("--start-seq".into());
             args.push(self.ledger.next_seq().to_string());
         }
-        if kind == ServiceKind::Slam {
+        if matches!(kind, ServiceKind::Slam | ServiceKind::SlamStandby) {
             args.push("--map-out".into());
             args.push(run_dir.join(MAP_FILE).to_string_lossy().into_owned());
             args.push("--loops-out".into());
@@ -184,7 +192,12 @@ impl Supervisor {
             args.push("--checkpoint".into());
             let checkpoint = run_dir.join(crate::map_files::CHECKPOINT_FILE);
             args.push(checkpoint.to_string_lossy().into_owned());
-            if self.ledger.next_seq() > 0 {
+            if kind == ServiceKind::SlamStandby {
+                // Written when it is promoted (`finish_promotion`).
+                let poses = run_dir.join(crate::map_files::RESUME_POSES_FILE);
+                args.push("--resume-poses".into());
+                args.push(poses.to_string_lossy().into_owned());
+            } else if self.ledger.next_seq() > 0 {
                 // A restart (or a resume): does it go on in the map?
                 let from = if checkpoint.is_file() {
                     let poses = run_dir.join(crate::map_files::RESUME_POSES_FILE);
@@ -264,9 +277,11 @@ impl Supervisor {
         }
     }
 
-    /// Reaps dead children and decides on restarts.
-    pub(super) fn watch_children(&mut self, stopping: bool) -> Result<bool> {
+    /// Reaps dead children and decides on restarts; a dead SLAM with a
+    /// ready standby is replaced by it at once ([`Self::promote_standby`]).
+    pub(super) fn watch_children(&mut self, stopping: bool) -> Result<Reaped> {
         let mut someone_died = false;
+        let mut promoted = None;
         let now = Instant::now();
         let timeout = Duration::from_secs(self.config.supervisor.ready_timeout_s);
         for i in 0..self.services.len() {
@@ -311,10 +326,17 @@ impl Supervisor {
                 continue;
             }
             let ready_for = svc.ready_since.map(|r| now.duration_since(r));
-            match svc
+            let decision = svc
                 .policy
-                .on_death(now.duration_since(svc.started), ready_for)
-            {
+                .on_death(now.duration_since(svc.started), ready_for);
+            if let (ServiceKind::Slam, RestartDecision::RestartAfter(_)) = (kind, decision) {
+                if let Some(standby) = self.promote_standby(i, pid, &how, now)? {
+                    promoted = Some(standby);
+                    continue;
+                }
+            }
+            let svc = &mut self.services[i];
+            match decision {
                 RestartDecision::RestartAfter(delay) => {
                     tracing::warn!(
                         pid,
@@ -366,7 +388,58 @@ impl Supervisor {
                 }
             }
         }
-        Ok(someone_died)
+        Ok(Reaped {
+            any: someone_died,
+            promoted,
+        })
+    }
+
+    /// The SLAM (`self.services[slam]`, pid `dead`) died and the restart
+    /// policy allows a restart: a ready standby takes its place at once
+    /// (its process becomes the SLAM's, counted as the SLAM's restart) and
+    /// a new standby is started behind it. Returns the standby's pid (it is
+    /// told by [`Supervisor::finish_promotion`]); None without a ready
+    /// standby (the SLAM is restarted cold).
+    fn promote_standby(
+        &mut self,
+        slam: usize,
+        dead: u32,
+        how: &str,
+        now: Instant,
+    ) -> Result<Option<u32>> {
+        let Some(j) = self.services.iter().position(|s| {
+            s.kind == ServiceKind::SlamStandby && s.state == SvcState::Ready && s.child.is_some()
+        }) else {
+            return Ok(None);
+        };
+        let standby = &mut self.services[j];
+        let child = standby.child.take().expect("a ready standby has a process");
+        let forwarder = standby.stderr_forwarder.take();
+        let last_error = std::mem::take(&mut standby.last_error);
+        standby.state = SvcState::Backoff { until: now };
+        let pid = child.id();
+        let svc = &mut self.services[slam];
+        svc.child = Some(child);
+        svc.stderr_forwarder = forwarder;
+        svc.last_error = last_error;
+        svc.state = SvcState::Ready;
+        svc.started = now;
+        svc.ready_since = Some(now);
+        svc.restarts += 1;
+        self.restarts += 1;
+        tracing::warn!(
+            dead,
+            "slam died ({how}); the standby (pid {pid}) takes over"
+        );
+        run_dir::log_restart(
+            &self.run_dir,
+            &format!(
+                "slam pid {dead} {how} next_seq {} at_ns {} promoted standby pid {pid}",
+                self.ledger.next_seq(),
+                pipeline::clock::now_ns()
+            ),
+        )?;
+        Ok(Some(pid))
     }
 
     /// The mask workers given up on, in words (a degraded run).
@@ -417,11 +490,12 @@ impl Supervisor {
             ServiceKind::CameraReader,
             ServiceKind::Segmenter,
             ServiceKind::Propagator,
+            ServiceKind::SlamStandby,
             ServiceKind::Slam,
             ServiceKind::Bridge,
         ] {
             let Some(svc) = self.services.iter_mut().find(|s| s.kind == kind) else {
-                continue; // no bridge in this run
+                continue; // no bridge or standby in this run
             };
             let Some(mut child) = svc.child.take() else {
                 // A service given up on stays `failed` (the run's outcome says why).

@@ -34,11 +34,6 @@ impl Rng {
     }
 }
 
-fn status(run_dir: &Path) -> Option<serde_json::Value> {
-    let text = std::fs::read_to_string(run_dir.join("status.json")).ok()?;
-    serde_json::from_str(&text).ok()
-}
-
 fn child_entry<'a>(s: &'a serde_json::Value, kind: &str) -> Option<&'a serde_json::Value> {
     s["children"]
         .as_array()?
@@ -50,11 +45,6 @@ fn all_ready(s: &serde_json::Value) -> bool {
     KINDS[..4]
         .iter()
         .all(|k| child_entry(s, k).is_some_and(|c| c["state"] == "ready"))
-}
-
-fn kill9(pid: u32) {
-    // SAFETY: plain kill(2) of a pid read from the run's status file.
-    unsafe { libc::kill(pid as i32, libc::SIGKILL) };
 }
 
 fn start_supervisor(args: &[&str], log: &Path) -> Child {
@@ -230,32 +220,6 @@ fn storm(
         child_kills,
         kills_by_kind,
     }
-}
-
-/// Waits up to `limit` for the (last) supervisor to end; it must succeed
-/// and no process of the run may have panicked (the log says).
-fn finish_cleanly(supervisor: &mut Child, log: &Path, limit: Duration) {
-    let t = Instant::now();
-    let exit = loop {
-        if let Some(st) = supervisor.try_wait().unwrap() {
-            break st;
-        }
-        assert!(
-            t.elapsed() < limit,
-            "run did not finish; see {}",
-            log.display()
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    };
-    let log_text = std::fs::read_to_string(log).unwrap();
-    assert!(
-        exit.success(),
-        "final supervisor failed: {exit}\n{log_text}"
-    );
-    assert!(
-        !log_text.contains("panicked"),
-        "a process panicked:\n{log_text}"
-    );
 }
 
 /// The kind of `kinds` killed least so far.

@@ -9,11 +9,6 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-fn status(run_dir: &Path) -> Option<serde_json::Value> {
-    let text = std::fs::read_to_string(run_dir.join("status.json")).ok()?;
-    serde_json::from_str(&text).ok()
-}
-
 /// The pid of the run's `service` process while it is ready.
 fn ready_pid(run_dir: &Path, service: &str) -> Option<u32> {
     let s = status(run_dir)?;
@@ -31,11 +26,6 @@ fn ready_pid(run_dir: &Path, service: &str) -> Option<u32> {
 fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
     static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
     LOCK.lock().unwrap_or_else(|p| p.into_inner())
-}
-
-fn kill9(pid: u32) {
-    // SAFETY: plain kill(2) of a pid read from the run's status file.
-    unsafe { libc::kill(pid as i32, libc::SIGKILL) };
 }
 
 /// `dynslam run` of the shared sequence in the background, into
@@ -56,28 +46,6 @@ fn start_run(dir: &Path, config: &Path, run_id: &str) -> (Child, std::path::Path
         .spawn()
         .unwrap();
     (sup, log)
-}
-
-/// Waits for the supervisor to exit successfully, without a panic logged.
-fn finish_cleanly(supervisor: &mut Child, log: &Path, limit: Duration) {
-    let t = Instant::now();
-    let exit = loop {
-        if let Some(st) = supervisor.try_wait().unwrap() {
-            break st;
-        }
-        assert!(
-            t.elapsed() < limit,
-            "run did not finish; see {}",
-            log.display()
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    };
-    let log_text = std::fs::read_to_string(log).unwrap();
-    assert!(exit.success(), "supervisor failed: {exit}\n{log_text}");
-    assert!(
-        !log_text.contains("panicked"),
-        "a process panicked:\n{log_text}"
-    );
 }
 
 /// The frames without a pose around each SLAM death of a finished run,
@@ -238,7 +206,7 @@ fn five_slam_kills(name: &str, config: &str) -> (Vec<u64>, f64, f64) {
 /// fps, the real SLAM killed 5 times, 1.5 s apart. Each kill costs at most
 /// 15 frames (0.5 s) without a pose (before the restarted SLAM was told
 /// that the dead one's frames will never be tracked and was restarted
-/// without backoff, each cost 30 or more; now 2-6), every frame is
+/// without backoff, each cost 30 or more; now 2-7), every frame is
 /// recorded once, one world frame. The ATE ratio to an unkilled run is
 /// printed (0.89-1.23 in five runs here: the real-time runs' own spread is
 /// about +-10 %).

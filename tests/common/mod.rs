@@ -271,3 +271,42 @@ pub fn shipped_zenoh_config(name: &str, dir: &Path, port: u16) -> PathBuf {
     std::fs::write(&out, text).unwrap();
     out
 }
+
+/// A run folder's `status.json`; None while it is missing or unreadable.
+pub fn status(run_dir: &Path) -> Option<serde_json::Value> {
+    let text = std::fs::read_to_string(run_dir.join("status.json")).ok()?;
+    serde_json::from_str(&text).ok()
+}
+
+/// SIGKILL to `pid`.
+pub fn kill9(pid: u32) {
+    // SAFETY: plain kill(2) of a pid read from the run's status file.
+    unsafe { libc::kill(pid as i32, libc::SIGKILL) };
+}
+
+/// Waits up to `limit` for the supervisor to exit, then checks that it
+/// succeeded and that no process panicked (its log, `log`, says).
+pub fn finish_cleanly(
+    supervisor: &mut std::process::Child,
+    log: &Path,
+    limit: std::time::Duration,
+) {
+    let t = std::time::Instant::now();
+    let exit = loop {
+        if let Some(st) = supervisor.try_wait().unwrap() {
+            break st;
+        }
+        assert!(
+            t.elapsed() < limit,
+            "run did not finish; see {}",
+            log.display()
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
+    let log_text = std::fs::read_to_string(log).unwrap();
+    assert!(exit.success(), "supervisor failed: {exit}\n{log_text}");
+    assert!(
+        !log_text.contains("panicked"),
+        "a process panicked:\n{log_text}"
+    );
+}

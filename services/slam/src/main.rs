@@ -169,10 +169,8 @@ const YOUNG_MAP_KEYFRAMES: u32 = slam_core::system::YOUNG_MAP_KEYFRAMES as u32;
 fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
     let loops_out = outputs.loops.as_deref();
     let standby = ctx.kind == ServiceKind::SlamStandby;
-    // A standby reads the map when promoted (the newest checkpoint then).
-    let mut tracker = (!standby)
-        .then(|| tracker_from_config(&ctx, files.clone()))
-        .transpose()?;
+    // The ports first: a restarted SLAM holds the frames that come while
+    // it reads its map, and tracks the newest of them at once.
     let frames = ctx.transport.slice_receiver::<FrameHeader>(Topic::Frames)?;
     let masks = ctx.transport.slice_receiver::<MasksHeader>(Topic::Masks)?;
     let routes = ctx.transport.receiver::<Route>(Topic::Routes)?;
@@ -189,6 +187,10 @@ fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
     let max_frames = qos(Topic::Frames).borrowed - 1;
     let max_masks = qos(Topic::Masks).borrowed - 1;
     let mut st = State::default();
+    // A standby reads the map when promoted (the newest checkpoint then).
+    let mut tracker = (!standby)
+        .then(|| tracker_from_config(&ctx, files.clone()))
+        .transpose()?;
     if standby {
         ctx.announce_ready()?;
         tracing::info!("slam standing by");

@@ -106,10 +106,10 @@ fn remote_line(run_dir: &Path, config: &PipelineConfig) -> Option<String> {
         n("remote"),
         n("fallback"),
         n("unavailable"),
-        if config.run.mode.is_realtime() {
-            ": the propagator carried the masks"
-        } else {
-            ": tracked unmasked"
+        match (n("unavailable"), config.run.mode.is_realtime()) {
+            (0, _) => "",
+            (_, true) => ": the propagator carried the masks",
+            (_, false) => ": tracked unmasked",
         }
     ))
 }

@@ -385,21 +385,8 @@ impl Supervisor {
         for t in tracks.drain()? {
             self.on_track(t)?;
         }
-        let poses = self.run_dir.join(crate::map_files::RESUME_POSES_FILE);
-        if let Err(e) = write_tum(&poses, &self.recent_tracked.rows, |_| true) {
-            tracing::warn!("the promoted SLAM relocalises instead of resuming its motion: {e:#}");
-        }
-        let map = if crate::map_files::checkpoint(&self.run_dir).is_some() {
-            "checkpoint"
-        } else {
-            "empty"
-        };
-        let next_seq = self.ledger.next_seq();
-        if let Err(e) =
-            run_dir::log_slam_start(&self.run_dir, next_seq, &format!("{map} (standby)"))
-        {
-            tracing::warn!("cannot record the SLAM start: {e:#}");
-        }
+        // The standby was started with the resume poses' path.
+        self.prepare_slam_start(true);
         let promotion = self.ledger.on_slam_promoted(Instant::now());
         control.send(Control {
             kind: shared_types::control_kind::PROMOTE,

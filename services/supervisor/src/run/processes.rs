@@ -2,7 +2,7 @@
 //! restarting it, stopping all in order, the watchdog's kill.
 
 use std::io::{BufRead, BufReader};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Child;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -198,24 +198,10 @@ impl Supervisor {
                 args.push("--resume-poses".into());
                 args.push(poses.to_string_lossy().into_owned());
             } else if self.ledger.next_seq() > 0 {
-                // A restart (or a resume): does it go on in the map?
-                let from = if checkpoint.is_file() {
-                    let poses = run_dir.join(crate::map_files::RESUME_POSES_FILE);
-                    match write_tum(&poses, &self.recent_tracked.rows, |_| true) {
-                        Ok(_) => {
-                            args.push("--resume-poses".into());
-                            args.push(poses.to_string_lossy().into_owned());
-                        }
-                        Err(e) => tracing::warn!(
-                            "the restarted SLAM relocalises instead of resuming its motion: {e:#}"
-                        ),
-                    }
-                    "checkpoint"
-                } else {
-                    "empty"
-                };
-                if let Err(e) = run_dir::log_slam_start(&run_dir, self.ledger.next_seq(), from) {
-                    tracing::warn!("cannot record the SLAM start: {e:#}");
+                // A restart (or a resume): it goes on in the map if there is one.
+                if let Some(poses) = self.prepare_slam_start(false) {
+                    args.push("--resume-poses".into());
+                    args.push(poses.to_string_lossy().into_owned());
                 }
             }
         }
@@ -244,6 +230,35 @@ impl Supervisor {
             }
         }
         self.status_dirty = true;
+    }
+
+    /// A SLAM start after the run's first frame (a restart, a resume, or
+    /// the standby's promotion): with a checkpoint to go on in, the last
+    /// tracked poses are written for it to resume its motion from (their
+    /// file is returned; None without a checkpoint or when they cannot be
+    /// written); the start is recorded in `slam-starts.log`.
+    pub(super) fn prepare_slam_start(&self, promoted: bool) -> Option<PathBuf> {
+        let run_dir = &self.run_dir;
+        let in_map = crate::map_files::checkpoint(run_dir).is_some();
+        let poses = run_dir.join(crate::map_files::RESUME_POSES_FILE);
+        let written = in_map
+            && match write_tum(&poses, &self.recent_tracked.rows, |_| true) {
+                Ok(_) => true,
+                Err(e) => {
+                    tracing::warn!("the SLAM relocalises instead of resuming its motion: {e:#}");
+                    false
+                }
+            };
+        let map = if in_map { "checkpoint" } else { "empty" };
+        let from = if promoted {
+            format!("{map} (standby)")
+        } else {
+            map.to_string()
+        };
+        if let Err(e) = run_dir::log_slam_start(run_dir, self.ledger.next_seq(), &from) {
+            tracing::warn!("cannot record the SLAM start: {e:#}");
+        }
+        written.then_some(poses)
     }
 
     pub(super) fn availability(&self) -> Availability {

@@ -28,7 +28,8 @@ setup:
         rm -rf .cache/wheels
     fi
     echo "$want  $lib" | sha256sum --check --quiet || { echo "error: $lib does not match its pinned sha256; delete it and run just setup again" >&2; exit 1; }
-    # The segmenter at 480 and 640 input: the shared 320 export rewritten by
+    # The segmenter at the input sizes ../shared/models lacks (YOLOv8n-seg 480
+    # and 640, YOLO11n-seg 480): the shared 320 export rewritten by
     # tools/yolo_input_size.py (Python onnx, pinned); deterministic, so pinned too.
     models=.cache/models
     if ! (cd "$models" 2>/dev/null && sha256sum --check --status ../../tools/yolo_input_size.sha256); then
@@ -42,7 +43,8 @@ setup:
         for size in 480 640; do
             "$venv/bin/python" tools/yolo_input_size.py "{{shared}}/models/yolov8n-seg_f32.onnx" "$models/yolov8n-seg_f32_$size.onnx" --size "$size"
         done
-        (cd "$models" && sha256sum --check --quiet ../../tools/yolo_input_size.sha256) || { echo "error: the rewritten segmenter models in $models do not match tools/yolo_input_size.sha256 (a different ../shared/models/yolov8n-seg_f32.onnx or onnx version?)" >&2; exit 1; }
+        "$venv/bin/python" tools/yolo_input_size.py "{{shared}}/models/yolo11n-seg_320_f32.onnx" "$models/yolo11n-seg_480_f32.onnx" --size 480
+        (cd "$models" && sha256sum --check --quiet ../../tools/yolo_input_size.sha256) || { echo "error: the rewritten segmenter models in $models do not match tools/yolo_input_size.sha256 (a different 320 export in ../shared/models or onnx version?)" >&2; exit 1; }
     fi
     (cd assets/vocabulary && sha256sum --check --quiet orb-k10-l4.vocab.sha256) || { echo "error: assets/vocabulary/orb-k10-l4.vocab does not match its pinned sha256; rebuild it with just vocab" >&2; exit 1; }
 

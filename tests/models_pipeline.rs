@@ -1,6 +1,6 @@
-//! The pipeline with the real segmenter model (YOLOv8n-seg through ONNX
-//! Runtime): it runs on keyframes and its stage shows in the latency
-//! summary; without its model file the run goes on unmasked.
+//! The pipeline with the real segmenter models (YOLOv8n-seg, YOLO11n-seg
+//! through ONNX Runtime): it runs on keyframes and its stage shows in the
+//! latency summary; without its model file the run goes on unmasked.
 //! Needs `just setup` (part of `just test`) and ../shared/models.
 
 mod common;
@@ -39,7 +39,7 @@ fn real_time_takes_the_320_export_unless_a_size_is_set() {
     // Unset, the input size follows the clock mode: in real time the
     // segmenter's pace bounds the keyframes, so the smaller export.
     let dir = scratch("yolo-realtime");
-    let rt = realtime_run(&dir, "", "30", "YOLOv8-seg input 320 px (Realtime mode)");
+    let rt = realtime_run(&dir, "", "30", "YOLOv8n-seg input 320 px (Realtime mode)");
     // The segmenter made masks at 320 in real time. Whether SLAM tracked a
     // frame with them is timing: when a frame's segmenter masks and a newer
     // frame's propagated ones reach SLAM in one wake-up, real time tracks
@@ -65,7 +65,7 @@ fn real_time_takes_the_320_export_unless_a_size_is_set() {
         &dir,
         "input_size = 480",
         "10",
-        "YOLOv8-seg input 480 px (Realtime mode)",
+        "YOLOv8n-seg input 480 px (Realtime mode)",
     );
 }
 
@@ -91,7 +91,7 @@ fn real_segmenter_runs_on_keyframes_and_its_latency_is_reported() {
     );
     assert!(
         run.stderr()
-            .contains("YOLOv8-seg input 480 px (Lockstep mode)"),
+            .contains("YOLOv8n-seg input 480 px (Lockstep mode)"),
         "{}",
         run.stderr()
     );
@@ -134,6 +134,42 @@ fn real_segmenter_runs_on_keyframes_and_its_latency_is_reported() {
         .iter()
         .filter(|r| r["route"] == "propagate")
         .all(|r| r["mask_source"] == "propagator"));
+    assert_no_shm_left(&run.run_id);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn yolo11_segments_the_keyframes_of_a_run() {
+    // The other network, chosen by its backend name alone: its 480 export
+    // (made by `just setup`) in lockstep, every keyframe masked by it.
+    let dir = scratch("yolo11-pipeline");
+    let config = write_config(
+        &dir,
+        &segmenter_config("").replace("\"yolov8-seg\"", "\"yolo11-seg\""),
+    );
+    let run = run(
+        &shared_tum(),
+        &config,
+        &dir.join("runs"),
+        &format!("yolo11-{}", std::process::id()),
+        &["--limit", "12"],
+    );
+    let log = run.stderr();
+    assert!(run.success(), "{log}");
+    assert!(
+        log.contains("segmenter ready with model 'yolo11-seg'")
+            && log.contains("YOLO11n-seg input 480 px (Lockstep mode)")
+            && log.contains("yolo11n-seg_480_f32.onnx"),
+        "{log}"
+    );
+    let rows = read_rows(&run.run_dir);
+    let segmented: Vec<_> = rows.iter().filter(|r| r["route"] == "segment").collect();
+    assert_eq!(segmented.len(), 3, "keyframe every 4 frames");
+    assert!(segmented
+        .iter()
+        .all(|r| r["mask_source"] == "segmenter" && r["state"] == "ok"));
+    let report = std::fs::read_to_string(run.run_dir.join("report.md")).unwrap();
+    assert!(report.contains("segmenter `yolo11-seg`"), "{report}");
     assert_no_shm_left(&run.run_id);
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -8,6 +8,7 @@ use pipeline::mask_worker::{model_from_config, MaskModel, ModelFactory};
 use pipeline::runtime::InputError;
 use shared_types::ServiceKind;
 
+use crate::exports::YoloFamily;
 use crate::ground_truth::GroundTruthMasks;
 use crate::maskrcnn::MaskRcnn;
 use crate::onnx::{YoloSeg, YoloSettings};
@@ -18,7 +19,8 @@ pub fn load(config: &PipelineConfig) -> Result<Box<dyn MaskModel>> {
         let settings = YoloSettings::for_mode(&config.services.segmenter, config.run.mode)?;
         // Unset, the size depends on the clock mode: say which it is.
         tracing::info!(
-            "YOLOv8-seg input {} px ({:?} mode): {}",
+            "{} input {} px ({:?} mode): {}",
+            settings.family.network(),
             settings.input_size,
             config.run.mode,
             settings.model.display()
@@ -42,7 +44,8 @@ pub fn load(config: &PipelineConfig) -> Result<Box<dyn MaskModel>> {
         ServiceKind::Segmenter,
         config,
         &[
-            ("yolov8-seg", yolo),
+            (YoloFamily::V8.backend(), yolo),
+            (YoloFamily::V11.backend(), yolo),
             ("maskrcnn", maskrcnn),
             ("ground-truth", truth),
         ],

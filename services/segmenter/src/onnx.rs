@@ -1,4 +1,5 @@
-//! The YOLOv8-seg backend: ONNX Runtime (`onnx_runtime`: the provisioned
+//! The YOLO-seg backends (YOLOv8n-seg, YOLO11n-seg: [`crate::exports`]):
+//! ONNX Runtime (`onnx_runtime`: the provisioned
 //! library, execution providers) running a verified model file; decoding in
 //! [`crate::yolo`].
 
@@ -14,6 +15,7 @@ use pipeline::views::{DepthImage, FrameView, MasksView};
 use shared_types::Instance;
 
 use crate::coco;
+use crate::exports::{self, YoloFamily};
 use crate::foreground::{continues, stands_out, ForegroundParams};
 use crate::letterbox::Letterbox;
 use crate::yolo::{candidates, nms, paint_masks, Detection, Prototypes, MASK_COEFFICIENTS};
@@ -21,6 +23,8 @@ use crate::yolo::{candidates, nms, paint_masks, Detection, Prototypes, MASK_COEF
 /// Settings of the backend, resolved from the configuration.
 #[derive(Debug, Clone)]
 pub struct YoloSettings {
+    /// The network generation (the model's, when it names a known export).
+    pub family: YoloFamily,
     /// The model file (verified).
     pub model: PathBuf,
     /// The square network input in pixels.
@@ -42,32 +46,6 @@ pub struct YoloSettings {
     pub threads: usize,
 }
 
-/// The YOLOv8n-seg export for each input size the product knows, with its
-/// sha256: the shared 320 file (../shared/models/README.md) and the 480 and
-/// 640 rewrites of it that `just setup` makes into `.cache/models` with
-/// tools/yolo_input_size.py (same weights, the head's anchor grid
-/// regenerated; deterministic, so the hash is pinned).
-pub const MODELS: [(usize, &str, &str); 3] = [
-    (
-        320,
-        "yolov8n-seg_f32.onnx",
-        "38459a0adc72f8b13be368e641b3c1a9815799b9bddbb86e0140aa18ec059942",
-    ),
-    (
-        480,
-        "yolov8n-seg_f32_480.onnx",
-        "f6c4d2e295738414d7110a3d271e83539feac8315890025a96e231b0ec370dfc",
-    ),
-    (
-        640,
-        "yolov8n-seg_f32_640.onnx",
-        "8a64b5282e3eb8e8829373635df8b3141cac2f6ae04cc753fc35713b4aef72e2",
-    ),
-];
-
-/// The input size of the shared export (the others are derived from it).
-pub const SHARED_INPUT_SIZE: usize = 320;
-
 /// The input size that an unset `input_size` (and no model naming an
 /// export) means in a run of this clock mode: a per-mode default, so it is
 /// the scheduling crate's ([`scheduling::mode::segmenter_input_size`]).
@@ -75,24 +53,11 @@ pub fn default_input_size(mode: ClockMode) -> usize {
     scheduling::mode::segmenter_input_size(mode)
 }
 
-/// The entry of [`MODELS`] for an input size; another size is an error
-/// naming the key and the sizes there are.
-pub fn export_for(
-    input_size: usize,
-) -> Result<&'static (usize, &'static str, &'static str), String> {
-    MODELS.iter().find(|(n, _, _)| *n == input_size).ok_or_else(|| {
-        let sizes: Vec<String> = MODELS.iter().map(|(n, _, _)| n.to_string()).collect();
-        format!(
-            "key `services.segmenter.input_size`: no YOLOv8n-seg export is provided for {input_size} (provided: {}); set `model` and `model_sha256` to an export of that size",
-            sizes.join(", ")
-        )
-    })
-}
-
 impl YoloSettings {
     /// Resolves and verifies the settings of `[services.segmenter]`: every
     /// problem is an [`InputError`] that names the key or file. Without
-    /// `model`, the export of [`MODELS`] for `input_size` is used; without
+    /// `model`, the export of the backend's family ([`exports::EXPORTS`])
+    /// for `input_size` is used; without
     /// either, the lockstep default ([`default_input_size`]).
     pub fn from_config(cfg: &SegmenterConfig) -> Result<Self> {
         Self::for_mode(cfg, ClockMode::Lockstep)
@@ -104,6 +69,7 @@ impl YoloSettings {
         // A known export named by `model` or by the file name of
         // `model_path` brings its own input size, so pointing `model_path`
         // at the shared 320 file works without also setting `input_size`.
+        let backend = cfg.backend.as_str();
         let named_export = {
             let file_name = cfg
                 .model_path
@@ -115,18 +81,32 @@ impl YoloSettings {
             } else {
                 cfg.model.as_str()
             };
-            MODELS.iter().find(|(_, n, _)| *n == name)
+            exports::named(name)
+        };
+        let family = match named_export {
+            Some(e) if e.family.backend() != backend && YoloFamily::from_backend(backend).is_some() => {
+                return Err(InputError(format!(
+                    "key `services.segmenter.backend`: `{}`, but the model '{}' is a {} export; set backend = \"{}\"",
+                    backend,
+                    e.file,
+                    e.family.network(),
+                    e.family.backend()
+                ))
+                .into())
+            }
+            Some(e) => e.family,
+            None => YoloFamily::from_backend(backend).unwrap_or(YoloFamily::V8),
         };
         let input_size = match (cfg.input_size, named_export) {
-            (Some(n), Some(m)) if n as usize != m.0 => {
+            (Some(n), Some(m)) if n as usize != m.input_size => {
                 return Err(InputError(format!(
                     "key `services.segmenter.input_size`: {n}, but the model '{}' is the {} export; drop `input_size` or choose the model for {n}",
-                    m.1, m.0
+                    m.file, m.input_size
                 ))
                 .into())
             }
             (Some(n), _) => n as usize,
-            (None, Some(m)) => m.0,
+            (None, Some(m)) => m.input_size,
             (None, None) => default_input_size(mode),
         };
         if input_size == 0 || !input_size.is_multiple_of(32) {
@@ -138,14 +118,14 @@ impl YoloSettings {
         let (file, known) = if !cfg.model.is_empty() {
             (cfg.model.as_str(), named_export)
         } else if let Some(m) = named_export {
-            (m.1, Some(m))
+            (m.file, Some(m))
         } else {
-            let m = export_for(input_size).map_err(InputError)?;
-            (m.1, Some(m))
+            let m = exports::export_for(family, input_size).map_err(InputError)?;
+            (m.file, Some(m))
         };
         let sha = match (cfg.model_sha256.is_empty(), known) {
             (false, _) => cfg.model_sha256.as_str(),
-            (true, Some(m)) => m.2,
+            (true, Some(m)) => m.sha256,
             (true, None) => {
                 return Err(InputError(format!(
                     "key `services.segmenter.model_sha256`: required for model '{file}'"
@@ -153,11 +133,12 @@ impl YoloSettings {
                 .into())
             }
         };
-        let derived = known.is_some_and(|m| m.0 != SHARED_INPUT_SIZE);
+        let derived = known.is_some_and(|m| !m.shared);
         let model = verified_model(file, sha, cfg.model_path.as_deref()).map_err(|e| {
             if derived && cfg.model_path.is_none() {
                 InputError(format!(
-                    "{e}; `just setup` makes it from the shared 320 model (tools/yolo_input_size.py)"
+                    "{e}; `just setup` makes it from the shared 320 {} model (tools/yolo_input_size.py)",
+                    family.network()
                 ))
                 .into()
             } else {
@@ -182,6 +163,7 @@ impl YoloSettings {
             }
         }
         Ok(Self {
+            family,
             model,
             input_size,
             score_threshold,
@@ -196,7 +178,7 @@ impl YoloSettings {
 
 use onnx_runtime::{open_session, verified_model};
 
-/// YOLOv8-seg instance segmentation.
+/// YOLO-seg instance segmentation (either family: one interface).
 pub struct YoloSeg {
     _env: ort::environment::Environment,
     session: Session,
@@ -223,7 +205,7 @@ impl YoloSeg {
         onnx_runtime::check_signature(
             &session,
             &settings.model,
-            "YOLOv8-seg export",
+            "YOLO-seg export",
             &["images"],
             &["output0", "output1"],
         )?;
@@ -291,7 +273,7 @@ impl YoloSeg {
             || shape1.len() != 4
             || shape1[1] as usize != MASK_COEFFICIENTS
         {
-            bail!("unexpected YOLOv8-seg outputs {shape0:?} / {shape1:?}");
+            bail!("unexpected YOLO-seg outputs {shape0:?} / {shape1:?}");
         }
         let num_classes = rows - 4 - MASK_COEFFICIENTS;
         let wanted = |c: usize| self.settings.dynamic_classes.contains(&c);
@@ -339,7 +321,7 @@ impl YoloSeg {
 
 impl MaskModel for YoloSeg {
     fn name(&self) -> &str {
-        "yolov8-seg"
+        self.settings.family.backend()
     }
 
     fn summary(&self) -> Option<String> {
@@ -374,41 +356,13 @@ impl MaskModel for YoloSeg {
             height,
             labels,
         )
-        .context("YOLOv8-seg inference")
+        .with_context(|| format!("{} inference", self.settings.family.network()))
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn the_pinned_hashes_are_the_ones_just_setup_checks() {
-        // `just setup` checks the rewritten files against this list; the
-        // segmenter against MODELS: one may not move without the other.
-        let list = include_str!("../../../tools/yolo_input_size.sha256");
-        let mut derived = 0;
-        for (size, name, sha) in MODELS.iter().filter(|m| m.0 != SHARED_INPUT_SIZE) {
-            assert!(name.contains(&format!("_{size}.onnx")), "{name}");
-            assert!(
-                list.contains(&format!("{sha}  {name}")),
-                "{name} {sha}\n{list}"
-            );
-            derived += 1;
-        }
-        assert_eq!(list.lines().count(), derived);
-    }
-
-    #[test]
-    fn input_size_alone_picks_the_export_of_that_size() {
-        assert_eq!(export_for(320).unwrap().1, "yolov8n-seg_f32.onnx");
-        assert_eq!(export_for(640).unwrap().1, "yolov8n-seg_f32_640.onnx");
-        let err = export_for(416).unwrap_err();
-        assert!(
-            err.contains("services.segmenter.input_size") && err.contains("320, 480, 640"),
-            "{err}"
-        );
-    }
 
     #[test]
     fn an_unset_input_size_is_480_in_lockstep_and_320_in_real_time() {

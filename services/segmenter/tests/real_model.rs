@@ -1,5 +1,6 @@
-//! The real YOLOv8n-seg model through the real ONNX Runtime on real frames.
-//! Needs `just setup` (the runtime) and ../shared/models (the weights).
+//! The real YOLOv8n-seg and YOLO11n-seg models through the real ONNX
+//! Runtime on real frames. Needs `just setup` (the runtime, the derived
+//! input sizes) and ../shared/models (the weights).
 
 use std::path::{Path, PathBuf};
 
@@ -7,6 +8,7 @@ use onnx_runtime::init_runtime;
 use pipeline::config::{OnnxRuntimeConfig, SegmenterConfig};
 use pipeline::provision::ORT_CACHE;
 use segmenter::coco::CLASSES;
+use segmenter::exports::YoloFamily;
 use segmenter::onnx::{YoloSeg, YoloSettings};
 
 fn repo() -> PathBuf {
@@ -84,6 +86,90 @@ fn finds_the_laptop_on_the_desk_with_its_mask_inside_its_box() {
             "mask of {i} covers {n} of {area} box pixels"
         );
     }
+}
+
+/// The model of `family` at `input_size` (its export, no file named: the
+/// backend and the size choose it).
+fn export(family: YoloFamily, input_size: u32) -> YoloSeg {
+    let cfg = SegmenterConfig {
+        backend: family.backend().into(),
+        model_path: Some(export_path(family, input_size as usize)),
+        classes: CLASSES.iter().map(|s| s.to_string()).collect(),
+        score_threshold: Some(0.3),
+        ..Default::default()
+    };
+    let settings = YoloSettings::from_config(&cfg).unwrap();
+    assert_eq!(
+        (settings.family, settings.input_size),
+        (family, input_size as usize)
+    );
+    YoloSeg::load(init_runtime(&runtime()).unwrap(), settings).unwrap()
+}
+
+/// The people of bus.jpg: their masks (labels == their instance).
+fn people_on_the_bus_photo(m: &mut YoloSeg) -> Vec<Vec<bool>> {
+    let bus = image::open(repo().join(".cache/fixtures/bus.png"))
+        .expect(".cache/fixtures/bus.png: run `just fixtures`")
+        .to_rgb8();
+    let (w, h) = (bus.width() as usize, bus.height() as usize);
+    let mut labels = vec![0u8; w * h];
+    let inst = m.segment(bus.as_raw(), w, h, &mut labels).unwrap();
+    let masks = instance_masks(&inst, &labels);
+    masks
+        .into_iter()
+        .filter(|(c, m)| {
+            CLASSES[*c as usize] == "person" && m.iter().filter(|&&p| p).count() * 50 >= w * h
+        })
+        .map(|(_, m)| m)
+        .collect()
+}
+
+#[test]
+fn yolo11_finds_the_people_yolov8_finds_at_every_input_size() {
+    // Same decoder for both generations: if YOLO11's outputs were read
+    // wrongly (or the rewritten 480 file's anchor grid were off) its masks
+    // would land elsewhere. The people standing in front of the bus
+    // (>= 2 % of the image each) are found by both, mask on mask.
+    for size in [320, 480, 640] {
+        let v8 = people_on_the_bus_photo(&mut export(YoloFamily::V8, size));
+        let v11 = people_on_the_bus_photo(&mut export(YoloFamily::V11, size));
+        assert!(
+            v8.len() >= 3,
+            "{size}: YOLOv8n-seg finds {} people",
+            v8.len()
+        );
+        for (k, person) in v8.iter().enumerate() {
+            let best = v11.iter().map(|m| iou(person, m)).fold(0.0, f64::max);
+            println!("{size}: person {k} of YOLOv8n-seg, mask IoU {best:.3} with YOLO11n-seg's");
+            assert!(best > 0.75, "{size}: person {k}: best mask IoU {best:.3}");
+        }
+    }
+}
+
+#[test]
+fn a_backend_and_a_model_of_the_other_generation_are_refused() {
+    let cfg = SegmenterConfig {
+        backend: "yolov8-seg".into(),
+        model: "yolo11n-seg_320_f32.onnx".into(),
+        model_path: Some(export_path(YoloFamily::V11, 320)),
+        ..Default::default()
+    };
+    let err = YoloSettings::from_config(&cfg).unwrap_err().to_string();
+    assert!(
+        err.contains("services.segmenter.backend")
+            && err.contains("YOLO11n-seg")
+            && err.contains("yolo11-seg"),
+        "{err}"
+    );
+    // The file named alone brings its generation and size.
+    let cfg = SegmenterConfig {
+        backend: "yolo11-seg".into(),
+        model: "yolo11n-seg_640_f32.onnx".into(),
+        model_path: Some(export_path(YoloFamily::V11, 640)),
+        ..Default::default()
+    };
+    let s = YoloSettings::from_config(&cfg).unwrap();
+    assert_eq!((s.family, s.input_size), (YoloFamily::V11, 640));
 }
 
 #[test]
@@ -186,7 +272,10 @@ fn an_input_size_the_model_does_not_take_is_a_configuration_error() {
     .unwrap();
     let cfg = SegmenterConfig {
         model: "my-yolo.onnx".into(),
-        model_sha256: segmenter::onnx::export_for(320).unwrap().2.into(),
+        model_sha256: segmenter::exports::export_for(YoloFamily::V8, 320)
+            .unwrap()
+            .sha256
+            .into(),
         model_path: Some(own),
         input_size: Some(640),
         ..Default::default()
@@ -208,11 +297,12 @@ fn an_input_size_the_model_does_not_take_is_a_configuration_error() {
     );
 }
 
-/// The segmenter at `size` (the export of that size, from ../shared/models
-/// or what `just setup` derives into .cache/models).
-fn model_at(size: usize) -> YoloSeg {
+/// The segmenter of `family` at `size` (the export of that size, from
+/// ../shared/models or what `just setup` derives into .cache/models).
+fn model_at(family: YoloFamily, size: usize) -> YoloSeg {
     let cfg = SegmenterConfig {
-        model_path: Some(export_path(size)),
+        backend: family.backend().into(),
+        model_path: Some(export_path(family, size)),
         input_size: Some(size as u32),
         classes: CLASSES.iter().map(|s| s.to_string()).collect(),
         score_threshold: Some(0.25),
@@ -227,8 +317,8 @@ fn model_at(size: usize) -> YoloSeg {
 
 /// The export of `size` in ../shared/models or where `just setup` derives
 /// it (.cache/models).
-fn export_path(size: usize) -> PathBuf {
-    let (_, file, _) = segmenter::onnx::export_for(size).unwrap();
+fn export_path(family: YoloFamily, size: usize) -> PathBuf {
+    let file = segmenter::exports::export_for(family, size).unwrap().file;
     [
         repo().join("../shared/models").join(file),
         repo().join(pipeline::provision::DERIVED_MODELS).join(file),
@@ -236,6 +326,11 @@ fn export_path(size: usize) -> PathBuf {
     .into_iter()
     .find(|p| p.is_file())
     .unwrap_or_else(|| panic!("{file}: not in ../shared/models or .cache/models; run `just setup`"))
+}
+
+/// COCO's car, bus, truck: one network may call another's bus a truck.
+fn is_vehicle(class: u32) -> bool {
+    matches!(CLASSES[class as usize], "car" | "bus" | "truck")
 }
 
 /// Instances of `labels` (1-based) as pixel sets with their class.
@@ -269,10 +364,22 @@ fn the_480_and_640_rewrites_agree_with_the_320_export_on_large_objects() {
         let (rgb, w, h) = tum_frame("1305031229.528748.png");
         ("tum frame 0", rgb, w, h)
     }];
-    let mut base = model_at(320);
-    for size in [480, 640] {
-        let mut larger = model_at(size);
-        for (name, rgb, w, h) in &images {
+    // YOLO11n-seg on the desk frame: its only large detection at 320 is a
+    // 'person' at 0.37 that the shared 640 file does not find either (the
+    // int8-derived weights guess there); bus.jpg alone checks its grid.
+    let images_of = |family| match family {
+        YoloFamily::V8 => &images[..],
+        YoloFamily::V11 => &images[..1],
+    };
+    // Both generations: YOLO11n-seg's rewrite also regenerates the cell
+    // counts of its attention block.
+    for (family, size) in YoloFamily::ALL
+        .into_iter()
+        .flat_map(|f| [(f, 480), (f, 640)])
+    {
+        let mut base = model_at(family, 320);
+        let mut larger = model_at(family, size);
+        for (name, rgb, w, h) in images_of(family) {
             let mut labels = vec![0u8; w * h];
             let small = instance_masks(&base.segment(rgb, *w, *h, &mut labels).unwrap(), &labels);
             labels.fill(0);
@@ -283,18 +390,23 @@ fn the_480_and_640_rewrites_agree_with_the_320_export_on_large_objects() {
                 .collect();
             assert!(!large.is_empty(), "{name}: no large object at 320");
             for (class, mask) in large {
+                // The same class, or (YOLO11n-seg: bus.jpg's bus is a
+                // truck at 480 and in the shared 640 file alike) another
+                // road vehicle: the network's confusion, not the grid's.
                 let best = big
                     .iter()
-                    .filter(|(c, _)| c == class)
+                    .filter(|(c, _)| c == class || (is_vehicle(*c) && is_vehicle(*class)))
                     .map(|(_, m)| iou(mask, m))
                     .fold(0.0, f64::max);
                 println!(
-                    "{name} {size}: {} IoU {best:.3} with 320",
+                    "{} {name} {size}: {} IoU {best:.3} with 320",
+                    family.network(),
                     CLASSES[*class as usize]
                 );
                 assert!(
                     best >= 0.75,
-                    "{name}: the {} found at 320 overlaps at most {best:.3} at {size}",
+                    "{} {name}: the {} found at 320 overlaps at most {best:.3} at {size}",
+                    family.network(),
                     CLASSES[*class as usize]
                 );
             }
@@ -306,7 +418,7 @@ fn the_480_and_640_rewrites_agree_with_the_320_export_on_large_objects() {
 /// ones down to `weak` on evidence (`weak_score_threshold`).
 fn model_480(score: f32, weak: f32) -> YoloSeg {
     let cfg = SegmenterConfig {
-        model_path: Some(export_path(480)),
+        model_path: Some(export_path(YoloFamily::V8, 480)),
         classes: pipeline::config::DEFAULT_DYNAMIC_CLASSES
             .iter()
             .map(|s| s.to_string())

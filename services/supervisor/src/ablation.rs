@@ -8,7 +8,8 @@
 //! pixels blacked out instead of keypoints filtered, (f, g) the product
 //! with the segmenter at 320 and 640 input (the default is 480), (h) the
 //! product with the SLAM's motion check, (i) the product without the
-//! propagator's early segmenter requests; and, when the sequence
+//! propagator's early segmenter requests, (j, k, l) the product with
+//! YOLO11n-seg at 320, 480 and 640 input; and, when the sequence
 //! was made by `dynslam synth` from a folder that still exists, the static
 //! original without people as the reference.
 
@@ -101,8 +102,32 @@ pub fn variants(static_original: Option<PathBuf>) -> Vec<Variant> {
             dataset: None,
             apply: |c| c.routing.early_segment_requests = false,
         },
+        Variant {
+            key: "j",
+            label: "(j) product routing, YOLO11n-seg at 320 input",
+            dataset: None,
+            apply: |c| yolo11_at(c, 320),
+        },
+        Variant {
+            key: "k",
+            label: "(k) product routing, YOLO11n-seg at 480 input",
+            dataset: None,
+            apply: |c| yolo11_at(c, 480),
+        },
+        Variant {
+            key: "l",
+            label: "(l) product routing, YOLO11n-seg at 640 input",
+            dataset: None,
+            apply: |c| yolo11_at(c, 640),
+        },
     ]);
     v
+}
+
+/// The segmenter's network YOLO11n-seg at `input_size` (rows j-l).
+fn yolo11_at(c: &mut PipelineConfig, input_size: u32) {
+    c.services.segmenter.backend = segmenter::exports::YoloFamily::V11.backend().into();
+    c.services.segmenter.input_size = Some(input_size);
 }
 
 /// One row of the table.
@@ -210,7 +235,7 @@ mod tests {
         let vs = variants(None);
         assert_eq!(
             vs.iter().map(|v| v.key).collect::<Vec<_>>(),
-            ["a", "b", "c", "d", "e", "f", "g", "h", "i"]
+            ["a", "b", "c", "d", "e", "f", "g", "h", "i", "j", "k", "l"]
         );
         let applied = |k: &str| {
             let mut c = base.clone();
@@ -230,6 +255,11 @@ mod tests {
         assert!(
             !applied("i").routing.early_segment_requests && base.routing.early_segment_requests
         );
+        for (k, n) in [("j", 320), ("k", 480), ("l", 640)] {
+            let c = applied(k);
+            assert_eq!(c.services.segmenter.backend, "yolo11-seg");
+            assert_eq!(c.services.segmenter.input_size, Some(n));
+        }
         assert_eq!(variants(Some(PathBuf::from("/x")))[0].key, "static");
     }
 

@@ -179,6 +179,11 @@ pub(crate) enum Command {
         /// Pipeline configuration (default: the built-in defaults).
         #[arg(long)]
         config: Option<PathBuf>,
+        /// Score every YOLO-seg network (YOLOv8n-seg, YOLO11n-seg) at every
+        /// input size (320, 480, 640) instead of the configured one: one
+        /// line each with IoU per cause and ms per keyframe.
+        #[arg(long, conflicts_with = "save")]
+        compare_segmenters: bool,
     },
     /// The V4L2 cameras of this machine (`/dev/video*`): name, formats, and
     /// which `source.v4l2` key takes each (README "Live camera").

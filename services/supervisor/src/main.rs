@@ -121,16 +121,24 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             json,
             save,
             config,
-        } => masks_eval(
-            &dataset,
-            keyframe_every,
-            min_px,
-            limit,
-            json,
-            save.as_deref(),
-            config.as_deref(),
-        )
-        .map(|()| ExitCode::SUCCESS),
+            compare_segmenters,
+        } => {
+            let (cfg, dataset) = (load_config(config.as_deref())?, dataset.as_path());
+            if compare_segmenters {
+                compare_segmenters_on(dataset, &cfg, keyframe_every, min_px, limit, json)
+            } else {
+                masks_eval(
+                    dataset,
+                    &cfg,
+                    keyframe_every,
+                    min_px,
+                    limit,
+                    json,
+                    save.as_deref(),
+                )
+            }
+            .map(|()| ExitCode::SUCCESS)
+        }
     }
 }
 
@@ -199,7 +207,7 @@ fn run_config(
     }
     if matches!(
         cfg.services.segmenter.backend.as_str(),
-        "yolov8-seg" | "maskrcnn"
+        "yolov8-seg" | "yolo11-seg" | "maskrcnn"
     ) {
         // Caught here, before any process starts, not as a degraded run.
         segmenter::coco::dynamic_classes(&cfg.services.segmenter.classes, "segmenter")
@@ -513,17 +521,73 @@ fn synth(
     Ok(())
 }
 
+/// `masks-eval --compare-segmenters`: one line per network and input size.
+fn compare_segmenters_on(
+    dataset: &std::path::Path,
+    cfg: &PipelineConfig,
+    keyframe_every: usize,
+    min_px: usize,
+    limit: Option<usize>,
+    json: bool,
+) -> Result<()> {
+    use supervisor::mask_eval::Subset;
+    let rows =
+        supervisor::mask_eval::compare_segmenters(dataset, cfg, keyframe_every, min_px, limit)?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&rows)?);
+        return Ok(());
+    }
+    let part = |x: &Subset| {
+        if x.samples == 0 {
+            "-".to_string()
+        } else {
+            format!("{:.3}", x.iou)
+        }
+    };
+    println!(
+        "{}: keyframe every {keyframe_every}, people scored where they cover >= {min_px} px; IoU of the segmenter on keyframes (all, then by cause; a keyframe has no 'entered since') and of the propagator after them; ms per keyframe",
+        dataset.display()
+    );
+    println!(
+        "{:<12} {:>5} {:>9} {:>10} {:>7} {:>9} {:>7} {:>10} {:>8}",
+        "network",
+        "input",
+        "keyframes",
+        "border-cut",
+        "small",
+        "occluded",
+        "plain",
+        "propagator",
+        "ms p50"
+    );
+    for r in &rows {
+        let (s, c) = (&r.scores, &r.scores.segmenter_by_cause);
+        println!(
+            "{:<12} {:>5} {:>9.3} {:>10} {:>7} {:>9} {:>7} {:>10.3} {:>8.1}",
+            r.network,
+            r.input_size,
+            s.segmenter_iou,
+            part(&c.border_cut),
+            part(&c.small),
+            part(&c.occluded),
+            part(&c.plain),
+            s.propagator_iou,
+            s.segmenter_ms_p50
+        );
+    }
+    Ok(())
+}
+
 fn masks_eval(
     dataset: &std::path::Path,
+    cfg: &PipelineConfig,
     keyframe_every: usize,
     min_px: usize,
     limit: Option<usize>,
     json: bool,
     save: Option<&std::path::Path>,
-    config: Option<&std::path::Path>,
 ) -> Result<()> {
-    let cfg = load_config(config)?;
-    let s = supervisor::mask_eval::evaluate(dataset, &cfg, keyframe_every, min_px, limit, save)?;
+    let s = supervisor::mask_eval::evaluate(dataset, cfg, keyframe_every, min_px, limit, save)?;
     if json {
         println!("{}", serde_json::to_string_pretty(&s)?);
         return Ok(());

@@ -33,6 +33,7 @@ use propagator::newcomers::NewcomerCheck;
 use crate::ignore::IgnoreRegions;
 use propagator::propagate::{LkPropagator, PropagatorParams};
 use scenes::truth::{instance_ious, InstanceIou};
+use segmenter::exports::YoloFamily;
 use segmenter::onnx::{YoloSeg, YoloSettings};
 use serde::Serialize;
 
@@ -287,6 +288,49 @@ fn mean(v: &[f64]) -> f64 {
     } else {
         v.iter().sum::<f64>() / v.len() as f64
     }
+}
+
+/// The scores of one network at one input size
+/// (`masks-eval --compare-segmenters`).
+#[derive(Debug, Clone, Serialize)]
+pub struct SegmenterScores {
+    pub network: &'static str,
+    pub backend: &'static str,
+    pub input_size: usize,
+    pub scores: MaskScores,
+}
+
+/// [`evaluate`] for every YOLO-seg network at every input size that all of
+/// them have, the rest of `config` unchanged; in one run, so the ms compare.
+pub fn compare_segmenters(
+    dataset: &Path,
+    config: &PipelineConfig,
+    keyframe_every: usize,
+    min_px: usize,
+    limit: Option<usize>,
+) -> Result<Vec<SegmenterScores>> {
+    let mut rows = Vec::new();
+    for family in YoloFamily::ALL {
+        for input_size in segmenter::exports::input_sizes() {
+            let mut cfg = config.clone();
+            let seg = &mut cfg.services.segmenter;
+            seg.backend = family.backend().into();
+            seg.input_size = Some(input_size as u32);
+            seg.model.clear();
+            seg.model_sha256.clear();
+            seg.model_path = None;
+            eprintln!("masks-eval: {} at {input_size}", family.network());
+            let scores = evaluate(dataset, &cfg, keyframe_every, min_px, limit, None)
+                .with_context(|| format!("{} at {input_size}", family.network()))?;
+            rows.push(SegmenterScores {
+                network: family.network(),
+                backend: family.backend(),
+                input_size,
+                scores,
+            });
+        }
+    }
+    Ok(rows)
 }
 
 /// Scores segmenter and propagator on `dataset` (a `dynslam synth` folder).

@@ -97,12 +97,13 @@ pub struct SegmenterConfig {
     /// machine's model makes the masks) or "none" (real time: the
     /// propagator carries masks; lockstep: the frame goes unmasked).
     pub fallback: String,
-    /// `yolov8-seg`, `maskrcnn`, `ground-truth` or `none`.
+    /// `yolov8-seg`, `yolo11-seg`, `maskrcnn`, `ground-truth` or `none`.
     pub backend: String,
     /// `none`: simulated work per frame (milliseconds).
     pub work_ms: u64,
     /// The model's file name (located as described in `pipeline::provision`);
-    /// unset: the YOLOv8n-seg export for `input_size`.
+    /// unset: the backend's export (YOLOv8n-seg or YOLO11n-seg) for
+    /// `input_size`.
     pub model: String,
     /// An explicit path to the model (then only it is tried).
     pub model_path: Option<PathBuf>,
@@ -110,7 +111,7 @@ pub struct SegmenterConfig {
     pub model_sha256: String,
     /// Minimum class score of an instance.
     pub score_threshold: Option<f32>,
-    /// YOLOv8-seg: weaker detections, down to this score, are kept where the
+    /// YOLO-seg: weaker detections, down to this score, are kept where the
     /// frame's depth shows them standing in front of their surroundings
     /// (unset: `score_threshold`, none kept that way).
     pub weak_score_threshold: Option<f32>,

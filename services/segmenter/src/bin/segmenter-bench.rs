@@ -1,13 +1,16 @@
 //! Segmenter speed: median and p99 milliseconds per 640x480 frame
-//! (letterbox + YOLOv8n-seg inference + decoding + mask painting) on real
-//! TUM frames, ONNX Runtime with the configured number of threads, for each
-//! network input size (320, 480, 640: the exports of `segmenter::onnx::MODELS`),
-//! back to back in one run so that the ratios compare like with like. Each
+//! (letterbox + inference + decoding + mask painting) on real TUM frames,
+//! ONNX Runtime with the configured number of threads, for each network
+//! (YOLOv8n-seg, YOLO11n-seg) at each input size (320, 480, 640: the
+//! exports of `segmenter::exports`), back to back in one run so that the
+//! ratios compare like with like; each row's p50 is also given as a ratio
+//! to the first row's (by default YOLOv8n-seg at 320, real time's). Each
 //! frame is segmented as the service does it: with its depth and the frame
 //! before's labels, which weak detections (`weak_score_threshold`) are
 //! checked against.
 //!
-//! `segmenter-bench [--frames N] [--threads T] [--sizes 320,480,640] [--config FILE] [--out FILE]`
+//! `segmenter-bench [--frames N] [--threads T] [--sizes 320,480,640]
+//! [--backends yolov8-seg,yolo11-seg] [--config FILE] [--out FILE]`
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -20,10 +23,11 @@ use onnx_runtime::init_runtime;
 use pipeline::config::PipelineConfig;
 use pipeline::stats::percentile;
 use pipeline::views::DepthImage;
+use segmenter::exports::YoloFamily;
 use segmenter::onnx::{YoloSeg, YoloSettings};
 
 #[derive(Debug, Parser)]
-#[command(about = "YOLOv8-seg segmenter: ms per 640x480 frame")]
+#[command(about = "YOLO-seg segmenters: ms per 640x480 frame")]
 struct Args {
     /// TUM RGB-D folder whose frames are segmented.
     #[arg(
@@ -40,6 +44,9 @@ struct Args {
     /// `model`, if any, is ignored here).
     #[arg(long, value_delimiter = ',', default_value = "320,480,640")]
     sizes: Vec<u32>,
+    /// The networks to measure, by backend name.
+    #[arg(long, value_delimiter = ',', default_value = "yolov8-seg,yolo11-seg")]
+    backends: Vec<String>,
     /// Pipeline configuration (default: the built-in defaults, i.e. the
     /// shipped configs/pipeline.toml).
     #[arg(long)]
@@ -85,18 +92,33 @@ fn main() -> Result<()> {
             per_metre: config.source.depth_scale,
         })
     };
+    let families = args
+        .backends
+        .iter()
+        .map(|b| {
+            YoloFamily::from_backend(b).with_context(|| {
+                let known: Vec<_> = YoloFamily::ALL.iter().map(|f| f.backend()).collect();
+                format!("--backends: unknown '{b}' (known: {})", known.join(", "))
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
     println!(
-        "segmenter YOLOv8n-seg, {w}x{h} frames, {} threads, {} frames per input size",
+        "segmenters, {w}x{h} frames, {} threads, {} frames per network and input size",
         args.threads,
         images.len()
     );
     println!(
-        "{:<12} {:>9} {:>9} {:>10}",
-        "input size", "p50 ms", "p99 ms", "instances"
+        "{:<12} {:<11} {:>9} {:>9} {:>10} {:>9}",
+        "network", "input size", "p50 ms", "p99 ms", "instances", "x first"
     );
     let mut rows = Vec::new();
-    for &size in &args.sizes {
+    let mut first_p50 = None;
+    for (family, &size) in families
+        .iter()
+        .flat_map(|f| args.sizes.iter().map(move |s| (f, s)))
+    {
         let mut cfg = config.services.segmenter.clone();
+        cfg.backend = family.backend().into();
         cfg.threads = Some(args.threads);
         cfg.input_size = Some(size);
         cfg.model.clear();
@@ -123,9 +145,11 @@ fn main() -> Result<()> {
         }
         ms.sort_by(f64::total_cmp);
         let (p50, p99) = (percentile(&ms, 50.0), percentile(&ms, 99.0));
-        println!("{size:<12} {p50:>9.2} {p99:>9.2} {found:>10}");
+        let ratio = p50 / *first_p50.get_or_insert(p50);
+        let network = family.network();
+        println!("{network:<12} {size:<11} {p50:>9.2} {p99:>9.2} {found:>10} {ratio:>9.2}");
         rows.push(format!(
-            "    {{\"input_size\": {size}, \"p50_ms\": {p50:.3}, \"p99_ms\": {p99:.3}, \"instances\": {found}}}"
+            "    {{\"network\": \"{network}\", \"input_size\": {size}, \"p50_ms\": {p50:.3}, \"p99_ms\": {p99:.3}, \"instances\": {found}}}"
         ));
     }
     if let Some(dir) = args.out.parent() {

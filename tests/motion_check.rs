@@ -2,7 +2,7 @@
 //! carried through the shared fr1 room (`dynslam synth --boxes`), tracked
 //! by the SLAM library alone without any mask. Issue 21's bar: the check
 //! finds the box in >= 80 % of the frames where it covers >= 2000 px
-//! (84.1 % here; `just eval-motion` runs it alone).
+//! (85.6 % here; `just eval-motion` runs it alone).
 //! (That it removes < 1 % of the features of the static sequence and keeps
 //! its ATE is slam-core's `core_tum` test.)
 

@@ -146,6 +146,15 @@ fn serve(ctx: ServiceContext, run_dir: &std::path::Path) -> Result<()> {
         }
         tracks.clear_wakeups();
         while let Some(t) = tracks.next()? {
+            // Masks that came after the loop above, for this Track.
+            if let Some(m) = &masks {
+                while outputs.awaits_masks_for(&t) {
+                    let Some(sample) = m.next_sample()? else {
+                        break;
+                    };
+                    outputs.on_masks(sample.user_header(), sample.payload());
+                }
+            }
             outputs.on_track(&t)?;
         }
         if let Some(tf) = &tf_in {

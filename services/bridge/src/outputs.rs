@@ -508,6 +508,23 @@ impl Outputs {
         }
     }
 
+    /// Whether frame `t` was tracked with masks that have not come here
+    /// yet: the caller reads more masks first. Masks are published before
+    /// the Track that used them, but the bridge reads the two services one
+    /// after the other, so a Track read just now may follow masks that came
+    /// after the masks were read (under load a mask image went missing so).
+    pub fn awaits_masks_for(&self, t: &Track) -> bool {
+        let Some((_, pending)) = &self.masks else {
+            return false;
+        };
+        let tracked = TrackState::from_u32(t.state).is_some_and(TrackState::is_tracked);
+        tracked
+            && t.mask_source != MaskSource::None as u32
+            && !pending
+                .iter()
+                .any(|m| m.seq == t.seq && m.source == t.mask_source)
+    }
+
     /// The masks the SLAM tracked frame `t` with, as a mono8 image.
     fn publish_masks(&mut self, t: &Track) -> Result<()> {
         let stamp = Time::from_secs(t.source_timestamp);

@@ -114,6 +114,8 @@ pub struct FrameResult {
     pub counts: FrameCounts,
     pub extract_ms: f64,
     pub track_ms: f64,
+    /// The motion check's part of `track_ms` (0 when off).
+    pub motion_ms: f64,
 }
 
 /// A map of at most this many keyframes is young: lost, it has too few
@@ -437,12 +439,8 @@ impl System {
                 tracked.pose_cw = refined;
             }
         }
-        let moving = if tracked.state.is_tracked() && !initialising && !restarted {
-            self.drop_moving(&mut frame, &mut tracked, input)
-        } else {
-            self.moving_regions.clear();
-            0
-        };
+        let checked = tracked.state.is_tracked() && !initialising && !restarted;
+        let (moving, motion_ms) = self.drop_moving(&mut frame, &mut tracked, (input, checked));
         let weakened = self.weakened(&tracked);
         let timing = if weakened {
             KeyframeTiming::Now
@@ -525,35 +523,37 @@ impl System {
             counts,
             extract_ms,
             track_ms: to_ms(t1),
+            motion_ms,
         }
     }
 
     /// The RGB-D motion check (when `params.motion_check`): the keypoints of
     /// `frame` in regions that move unlike the camera (at its pose just
     /// estimated) are dropped from the frame and its matches, so that
-    /// neither the keyframe decision nor mapping sees them; the pose itself
-    /// came from robust optimisation, where such a minority is outvoted.
-    /// The frame is kept whole for later frames' checks (a mover keeps
-    /// being found). Returns how many keypoints were dropped.
+    /// neither the keyframe decision nor mapping sees them (the pose came
+    /// from robust optimisation: such a minority is outvoted); the frame is
+    /// kept whole for later frames' checks. Returns the keypoints dropped and
+    /// the ms it took (0, 0 unless `checked`: a tracked frame).
     fn drop_moving(
         &mut self,
         frame: &mut Frame,
         tracked: &mut Tracked,
-        input: &RgbdInput,
-    ) -> usize {
+        (input, checked): (&RgbdInput, bool),
+    ) -> (usize, f64) {
         self.moving_regions.clear();
-        if !self.params.motion_check || self.params.is_monocular() {
-            return 0;
+        if !self.params.motion_check || self.params.is_monocular() || !checked {
+            return (0, 0.0);
         }
+        let started = std::time::Instant::now();
         let regions = self.motion.observe(
             frame,
             input.depth,
-            &tracked.pose_cw,
+            (&tracked.pose_cw, &tracked.matched),
             input.timestamp,
             &self.camera,
         );
         if regions.is_empty() {
-            return 0;
+            return (0, to_ms(started));
         }
         let (kept, index) = frame.without_index(|k| {
             let (u, v) = frame.un[k];
@@ -566,7 +566,7 @@ impl System {
             .min(tracked.matched.iter().flatten().count());
         *frame = kept;
         self.moving_regions = regions;
-        dropped
+        (dropped, to_ms(started))
     }
 
     /// The regions the motion check found moving in the last frame
@@ -830,6 +830,7 @@ impl System {
             counts: FrameCounts::default(),
             extract_ms: 0.0,
             track_ms: 0.0,
+            motion_ms: 0.0,
         }
     }
 

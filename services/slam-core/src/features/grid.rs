@@ -38,6 +38,14 @@ impl Grid {
     /// the distance), into `out`.
     pub fn near(&self, u: f64, v: f64, r: f64, out: &mut Vec<usize>) {
         out.clear();
+        for cell in self.cells_near(u, v, r) {
+            out.extend_from_slice(cell);
+        }
+    }
+
+    /// [`Self::near`] cell by cell, without copying the indices (for a
+    /// caller that visits many of them once).
+    pub fn cells_near(&self, u: f64, v: f64, r: f64) -> impl Iterator<Item = &[usize]> {
         let (x0, x1) = (
             ((u - r) / self.cell).floor() + 1.0,
             ((u + r) / self.cell).floor() + 1.0,
@@ -46,10 +54,10 @@ impl Grid {
             ((v - r) / self.cell).floor() + 1.0,
             ((v + r) / self.cell).floor() + 1.0,
         );
-        for cy in y0.max(0.0) as usize..=(y1.max(0.0) as usize).min(self.rows - 1) {
-            for cx in x0.max(0.0) as usize..=(x1.max(0.0) as usize).min(self.cols - 1) {
-                out.extend_from_slice(&self.cells[cy * self.cols + cx]);
-            }
-        }
+        let xs = x0.max(0.0) as usize..=(x1.max(0.0) as usize).min(self.cols - 1);
+        (y0.max(0.0) as usize..=(y1.max(0.0) as usize).min(self.rows - 1)).flat_map(move |cy| {
+            xs.clone()
+                .map(move |cx| self.cells[cy * self.cols + cx].as_slice())
+        })
     }
 }

@@ -304,6 +304,7 @@ fn main() -> Result<()> {
     };
     system.set_localize_only(args.localize_only);
     let (mut extract, mut track, mut total) = (Vec::new(), Vec::new(), Vec::new());
+    let mut motion = Vec::new();
     // Local mapping time per keyframe (on its thread unless --inline-mapping).
     let mut mapping = Vec::new();
     let mut trajectory = Trajectory {
@@ -357,6 +358,7 @@ fn main() -> Result<()> {
         features += (r.counts.features + r.counts.features_moving) as u64;
         extract.push(r.extract_ms);
         track.push(r.track_ms);
+        motion.push(r.motion_ms);
         total.push(r.extract_ms + r.track_ms);
         if r.state.is_tracked() {
             tracked += 1;
@@ -375,7 +377,13 @@ fn main() -> Result<()> {
         std::fs::create_dir_all(dir)?;
     }
     std::fs::write(&args.out, trajectory.to_tum())?;
-    for v in [&mut extract, &mut track, &mut total, &mut mapping] {
+    for v in [
+        &mut extract,
+        &mut track,
+        &mut motion,
+        &mut total,
+        &mut mapping,
+    ] {
         v.sort_by(f64::total_cmp);
     }
     println!(
@@ -385,12 +393,18 @@ fn main() -> Result<()> {
         if args.masks { "ground truth" } else { "none" }
     );
     println!("{:<10} {:>9} {:>9}", "step", "p50 ms", "p99 ms");
+    // The motion check is part of track; its own row when it is on.
+    let motion_row = motion.iter().any(|&ms| ms > 0.0);
     for (name, v) in [
         ("extract", &extract),
         ("track", &track),
+        ("motion", &motion),
         ("total", &total),
         ("mapping/kf", &mapping),
-    ] {
+    ]
+    .into_iter()
+    .filter(|(name, _)| *name != "motion" || motion_row)
+    {
         println!(
             "{:<10} {:>9.2} {:>9.2}",
             name,

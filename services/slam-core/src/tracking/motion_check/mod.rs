@@ -33,9 +33,12 @@ use crate::camera::Camera;
 use crate::features::orb::hamming;
 use crate::frame::Frame;
 
+mod depth;
+use depth::{cell_centres, dense_regions, lookup_window, Around, CellCentres, NearestDepth};
+
 /// What the check looks for (docs/models.md "Motion check" has the figures: the
-/// static shared sequence keeps 99.76 % of its features and its ATE; a box
-/// carried through it is found in 84.1 % of the frames, the bar
+/// static shared sequence keeps 99.66 % of its features and its ATE; a box
+/// carried through it is found in 85.6 % of the frames, the bar
 /// is 80 %).
 #[derive(Debug, Clone, PartialEq)]
 pub struct MotionCheckParams {
@@ -45,8 +48,14 @@ pub struct MotionCheckParams {
     /// older: a mover that turns back (carried to and fro, a door swung
     /// back) is about where it was `gap_s` before, not this long before.
     pub long_gap_s: f64,
-    /// Search radius around the static prediction (pixels at level 0).
+    /// Search radius around the static prediction (pixels at level 0), at
+    /// most...
     pub search_px: f64,
+    /// ...and no farther than a point this fast (m/s, sideways) moves in
+    /// the image over the frames' time apart at its depth, plus
+    /// `search_margin_px` (pose error): at 2 m and 0.1 s apart, 62 px.
+    pub max_speed_mps: f64,
+    pub search_margin_px: f64,
     /// A match needs at most this descriptor distance...
     pub max_hamming: u32,
     /// ...and at most this share of the second best's.
@@ -84,6 +93,8 @@ impl Default for MotionCheckParams {
             gap_s: 0.2,
             long_gap_s: 0.4,
             search_px: 120.0,
+            max_speed_mps: 2.5,
+            search_margin_px: 12.0,
             max_hamming: 40,
             ratio: 0.7,
             min_shift_px: 6.0,
@@ -128,133 +139,9 @@ struct PastFrame {
     turn_rate: f64,
 }
 
-/// A depth image at a quarter of its resolution, each cell the nearest
-/// surface of its 4x4 block (metres; 0: none seen): what was free space.
-struct NearestDepth {
-    width: usize,
-    height: usize,
-    metres: Vec<f32>,
-}
-
-const CELL: usize = 4;
-/// Cells each side of a lookup (5x5 cells, 20 px) at least: depth noise
-/// and pose error at an edge.
-const WINDOW: usize = 2;
-/// How far apart in time a depth image and the colour image whose pose it
-/// is looked up with are (s): in the shared fr1 sequence's associations
-/// the depth image comes 0-17 ms after the colour one, 13 ms at the 90th
-/// percentile. In a turn that moves the depth image against the colour
-/// pose by `fx * turn rate * this` pixels (fr1_rpy at 2.5 rad/s: 17 px),
-/// so the lookup window grows by that: with a fixed 5x5 the static shared
-/// sequence's fast turns looked like free space being filled (0.51 % of
-/// its features dropped, 0.24 % with the growing window). A window much
-/// larger than that hides movers over surfaces that slope towards the
-/// camera (the nearest surface in a wide window is nearer than the one
-/// behind the mover): 20 ms, 100 of the carried box's 132 frames found; 13
-/// ms, 101; 10 ms, 102 but 0.26 % of the static features.
-const DEPTH_OFFSET_S: f64 = 0.013;
-
-/// Cells each side of a lookup in a depth image taken while the camera
-/// turned at `then` (rad/s), for a point of a frame taken while it turned at
-/// `now`: the two misregistrations add up.
-fn lookup_window(camera: &Camera, now: f64, then: f64) -> usize {
-    let px = camera.fx * (now + then) * DEPTH_OFFSET_S;
-    WINDOW + (px / CELL as f64).ceil().clamp(0.0, 8.0) as usize
-}
-
-impl NearestDepth {
-    fn new(depth: &[u16], width: usize, height: usize, depth_scale: f64) -> Self {
-        let (w, h) = (width.div_ceil(CELL), height.div_ceil(CELL));
-        let mut metres = vec![0f32; w * h];
-        if depth.len() == width * height {
-            for y in 0..height {
-                for x in 0..width {
-                    let d = depth[y * width + x];
-                    if d != 0 {
-                        let m = (d as f64 / depth_scale) as f32;
-                        let c = &mut metres[(y / CELL) * w + x / CELL];
-                        if *c == 0.0 || m < *c {
-                            *c = m;
-                        }
-                    }
-                }
-            }
-        }
-        Self {
-            width: w,
-            height: h,
-            metres,
-        }
-    }
-
-    /// For every cell, the nearest surface seen within `window` cells of
-    /// it, where two thirds of those cells saw one (else 0): a foreground
-    /// edge a pose error away still counts, so edges do not look like free
-    /// space. Two passes (rows, then columns) of window minima and counts.
-    fn around(&self, window: usize) -> Around {
-        let (w, h) = (self.width, self.height);
-        let mut row_min = vec![f32::INFINITY; w * h];
-        let mut row_seen = vec![0u16; w * h];
-        for y in 0..h {
-            let row = &self.metres[y * w..(y + 1) * w];
-            for x in 0..w {
-                let (mut nearest, mut seen) = (f32::INFINITY, 0);
-                for &m in &row[x.saturating_sub(window)..(x + window + 1).min(w)] {
-                    if m > 0.0 {
-                        seen += 1;
-                        nearest = nearest.min(m);
-                    }
-                }
-                row_min[y * w + x] = nearest;
-                row_seen[y * w + x] = seen;
-            }
-        }
-        let cells = ((2 * window + 1) * (2 * window + 1)) as u32;
-        let mut metres = vec![0f32; w * h];
-        for y in 0..h {
-            for x in 0..w {
-                let (mut nearest, mut seen) = (f32::INFINITY, 0u32);
-                for yy in y.saturating_sub(window)..(y + window + 1).min(h) {
-                    nearest = nearest.min(row_min[yy * w + x]);
-                    seen += row_seen[yy * w + x] as u32;
-                }
-                if seen * 3 >= cells * 2 {
-                    metres[y * w + x] = nearest;
-                }
-            }
-        }
-        Around {
-            width: w,
-            height: h,
-            metres,
-        }
-    }
-}
-
-/// [`NearestDepth::around`]: per cell, the nearest surface seen around it.
-struct Around {
-    width: usize,
-    height: usize,
-    metres: Vec<f32>,
-}
-
-impl Around {
-    /// The nearest surface seen around the (raw) pixel, if enough was seen.
-    fn nearest_at(&self, (u, v): (f64, f64)) -> Option<f64> {
-        if !(u >= 0.0 && v >= 0.0) {
-            return None;
-        }
-        let (cx, cy) = ((u as usize) / CELL, (v as usize) / CELL);
-        if cx >= self.width || cy >= self.height {
-            return None;
-        }
-        let m = self.metres[cy * self.width + cx];
-        (m > 0.0).then_some(m as f64)
-    }
-}
-
-/// An image size and the ideal pixel of each of its depth cells' centres.
-type CellPixels = ((usize, usize), Vec<(f64, f64)>);
+/// An image size and the ideal pixel and ray of each of its depth cells'
+/// centres.
+type CellPixels = ((usize, usize), CellCentres);
 
 /// The check and the recent frames it compares with.
 pub struct MotionCheck {
@@ -283,18 +170,24 @@ impl MotionCheck {
 
     /// The regions of `frame` (tracked at `pose_cw`, with its raw depth)
     /// that move unlike the camera, then the frame kept for the frames
-    /// after it. The depth is put into cells once, for both.
+    /// after it. The depth is put into cells once, for both. `matched[k]`:
+    /// the map point keypoint `k` is an inlier of the pose with, if any; such
+    /// a keypoint lies where a static point does, so it is not looked for
+    /// again in the older frames (it would be found unshifted: it counts as
+    /// matched there).
     pub fn observe(
         &mut self,
         frame: &Frame,
         depth: &[u16],
-        pose_cw: &Isometry3<f64>,
+        (pose_cw, matched): (&Isometry3<f64>, &[Option<usize>]),
         timestamp: f64,
         camera: &Camera,
     ) -> Vec<MovingRegion> {
+        let on_map: Vec<bool> = matched.iter().map(Option::is_some).collect();
+        let on_map = on_map.as_slice();
         let now = NearestDepth::new(depth, frame.width, frame.height, camera.depth_scale);
         let turn = self.turn_rate(pose_cw, timestamp);
-        let regions = self.regions(frame, &now, (pose_cw, turn), timestamp, camera);
+        let regions = self.regions(frame, &now, (pose_cw, turn, on_map), timestamp, camera);
         self.remember(frame, now, (pose_cw, turn), timestamp);
         regions
     }
@@ -306,7 +199,7 @@ impl MotionCheck {
         &mut self,
         frame: &Frame,
         now: &NearestDepth,
-        (pose_cw, turn): (&Isometry3<f64>, f64),
+        (pose_cw, turn, on_map): (&Isometry3<f64>, f64, &[bool]),
         timestamp: f64,
         camera: &Camera,
     ) -> Vec<MovingRegion> {
@@ -347,7 +240,14 @@ impl MotionCheck {
             (around, dense)
         };
         let (around, dense) = warp(past);
-        let evidence = keypoint_evidence(frame, pose_cw, past, &around, camera, p);
+        let evidence = keypoint_evidence(
+            frame,
+            (pose_cw, on_map, timestamp),
+            past,
+            &around,
+            camera,
+            p,
+        );
         // Two kinds of evidence, grouped apart: keypoints seen again
         // elsewhere (shifted), and keypoints now where the older frame saw
         // free space (no shift; an object that entered or moved onto it).
@@ -367,7 +267,19 @@ impl MotionCheck {
             // in at the border in the last 0.2 s is not in the older frame
             // (carried box: 94 -> 99 of 132 frames found; +1.4 ms a frame).
             let (around, dense) = warp(recent);
-            let e = keypoint_evidence(frame, pose_cw, recent, &around, camera, p);
+            // Only the keypoints the older frame did not show again: the
+            // others' evidence is in already (half the search's time).
+            let known: Vec<bool> = (0..frame.kps.len())
+                .map(|k| on_map.get(k).copied().unwrap_or(false) || evidence.found[k])
+                .collect();
+            let e = keypoint_evidence(
+                frame,
+                (pose_cw, &known, timestamp),
+                recent,
+                &around,
+                camera,
+                p,
+            );
             out.extend(clusters(&e.moved, &e.matched_at, p));
             out.extend(dense);
         }
@@ -445,11 +357,16 @@ struct KeypointEvidence {
     matched_at: Vec<Vector2<f64>>,
     appeared: Vec<Moved>,
     seen_at: Vec<Vector2<f64>>,
+    /// Per keypoint: seen again there (a distinct match with depth).
+    found: Vec<bool>,
 }
 
+/// `known[k]`: keypoint `k` is not looked for (an inlier of the pose, so
+/// where a static point is; or seen again in a frame looked at before): it
+/// counts as matched, unshifted.
 fn keypoint_evidence(
     frame: &Frame,
-    pose_cw: &Isometry3<f64>,
+    (pose_cw, known, timestamp): (&Isometry3<f64>, &[bool], f64),
     past: &PastFrame,
     around: &Around,
     camera: &Camera,
@@ -458,7 +375,6 @@ fn keypoint_evidence(
     let now_to_past = past.pose_cw * pose_cw.inverse();
     let past_wc = past.pose_cw.inverse();
     let now_wc = pose_cw.inverse();
-    let mut near = Vec::new();
     let mut moved = Vec::new();
     // Keypoints matched in the past frame, for the share test.
     let mut matched_at = Vec::new();
@@ -466,6 +382,8 @@ fn keypoint_evidence(
     // are now in what was free space then.
     let mut seen_at = Vec::new();
     let mut appeared = Vec::new();
+    let mut found = vec![false; frame.kps.len()];
+    #[allow(clippy::needless_range_loop)] // k indexes five arrays of the frame
     for k in 0..frame.kps.len() {
         let Some(z) = frame.depth[k] else { continue };
         let (u, v) = frame.un[k];
@@ -485,14 +403,25 @@ fn keypoint_evidence(
                 });
             }
         }
-        past.frame.grid.near(pu, pv, p.search_px, &mut near);
+        if known.get(k).copied().unwrap_or(false) {
+            // The search is most of this function's time.
+            matched_at.push(Vector2::new(u, v));
+            continue;
+        }
+        // A person walks 1-2 m/s: over 0.1-0.2 s, at a few metres, a few
+        // dozen pixels; the full radius only near the camera. The square
+        // searched shrinks with the square of this (the check's largest
+        // cost after the depth warp).
+        let reach = camera.fx * p.max_speed_mps * (timestamp - past.timestamp) / z;
+        let radius = p.search_px.min(p.search_margin_px + reach);
         let level = frame.kps[k].level as i32;
+        let desc = &frame.descs[k];
         let (mut best, mut second, mut best_j) = (u32::MAX, u32::MAX, None);
-        for &j in &near {
+        for &j in past.frame.grid.cells_near(pu, pv, radius).flatten() {
             if (past.frame.kps[j].level as i32 - level).abs() > 1 {
                 continue;
             }
-            let d = hamming(&frame.descs[k], &past.frame.descs[j]);
+            let d = hamming(desc, &past.frame.descs[j]);
             if d < best {
                 (second, best, best_j) = (best, d, Some(j));
             } else if d < second {
@@ -507,6 +436,7 @@ fn keypoint_evidence(
             continue;
         };
         matched_at.push(Vector2::new(u, v));
+        found[k] = true;
         let (ju, jv) = past.frame.un[j];
         let shift = Vector2::new(ju - pu, jv - pv);
         let world_now = now_wc * nalgebra::Point3::from(here);
@@ -524,117 +454,8 @@ fn keypoint_evidence(
         matched_at,
         appeared,
         seen_at,
+        found,
     }
-}
-
-/// The ideal (undistorted) pixel of each depth cell's centre of a
-/// `width x height` image, row by row.
-fn cell_centres(camera: &Camera, width: usize, height: usize) -> Vec<(f64, f64)> {
-    let (cw, ch) = (width.div_ceil(CELL), height.div_ceil(CELL));
-    (0..cw * ch)
-        .map(|c| {
-            let (x, y) = ((c % cw) * CELL, (c / cw) * CELL);
-            camera.undistort(x as f64 + CELL as f64 / 2.0, y as f64 + CELL as f64 / 2.0)
-        })
-        .collect()
-}
-
-/// The dense depth warp: cells of the current depth (`now`) that, put
-/// into the older frame, lie in front of what it saw there (free space
-/// then), in connected groups of at least `min_cells`, each grown over the
-/// surface it is part of (a mover's other cells, which may overlap where
-/// it was before); their boxes in ideal pixels.
-fn dense_regions(
-    now: &NearestDepth,
-    cells: &[(f64, f64)],
-    past: &Around,
-    now_to_past: &Isometry3<f64>,
-    camera: &Camera,
-    p: &MotionCheckParams,
-) -> Vec<MovingRegion> {
-    let (w, h) = (now.width, now.height);
-    let mut appeared = vec![false; w * h];
-    for (c, flag) in appeared.iter_mut().enumerate() {
-        let z = now.metres[c] as f64;
-        if z <= 0.0 {
-            continue;
-        }
-        let (u, v) = cells[c];
-        let there = now_to_past * nalgebra::Point3::from(camera.unproject(u, v, z));
-        if there.z < 0.1 {
-            continue;
-        }
-        let (pu, pv) = camera.project(&there.coords);
-        if let Some(seen) = past.nearest_at(camera.distort(pu, pv)) {
-            *flag = seen - there.z > p.min_move_m + p.move_per_m2 * z * z;
-        }
-    }
-    let neighbours = |c: usize| {
-        let (x, y) = (c % w, c / w);
-        [
-            (x > 0).then(|| c - 1),
-            (x + 1 < w).then(|| c + 1),
-            (y > 0).then(|| c - w),
-            (y + 1 < h).then(|| c + w),
-        ]
-        .into_iter()
-        .flatten()
-    };
-    let mut label = vec![0u32; w * h];
-    let mut regions = Vec::new();
-    let mut next = 0u32;
-    for start in 0..w * h {
-        if !appeared[start] || label[start] != 0 {
-            continue;
-        }
-        next += 1;
-        let mut component = vec![start];
-        label[start] = next;
-        let mut i = 0;
-        while i < component.len() {
-            for n in neighbours(component[i]) {
-                if appeared[n] && label[n] == 0 {
-                    label[n] = next;
-                    component.push(n);
-                }
-            }
-            i += 1;
-        }
-        if component.len() < p.min_cells {
-            continue;
-        }
-        let seed = component.len();
-        // Grow over the same surface: a neighbour continues it when its
-        // depth is close to the cell it is reached from.
-        let mut i = 0;
-        while i < component.len() && component.len() < seed * p.max_growth {
-            let c = component[i];
-            let z = now.metres[c] as f64;
-            for n in neighbours(c) {
-                let zn = now.metres[n] as f64;
-                if label[n] == 0 && zn > 0.0 && (zn - z).abs() <= p.surface_m + p.surface_per_m * z
-                {
-                    label[n] = next;
-                    component.push(n);
-                }
-            }
-            i += 1;
-        }
-        let mut min = [f64::INFINITY; 2];
-        let mut max = [f64::NEG_INFINITY; 2];
-        for &c in &component {
-            let (u, v) = cells[c];
-            min = [min[0].min(u), min[1].min(v)];
-            max = [max[0].max(u), max[1].max(v)];
-        }
-        let half = CELL as f64 / 2.0 + p.margin_px;
-        regions.push(MovingRegion {
-            min: [(min[0] - half) as f32, (min[1] - half) as f32],
-            max: [(max[0] + half) as f32, (max[1] + half) as f32],
-            evidence: seed,
-        });
-    }
-    regions
 }
 
 /// Groups moved keypoints (single linkage: near in the image, shifted
@@ -694,6 +515,7 @@ fn clusters(
 
 #[cfg(test)]
 mod tests {
+    use super::depth::*;
     use super::*;
 
     fn moved(x: f64, y: f64, dx: f64) -> Moved {
@@ -733,6 +555,74 @@ mod tests {
         let mut matched: Vec<_> = m.iter().map(|x| x.at).collect();
         matched.extend((0..20).map(|i| Vector2::new(100.0 + 2.0 * i as f64, 100.0)));
         assert!(clusters(&m, &matched, &p).is_empty());
+    }
+
+    #[test]
+    fn cells_and_their_surroundings_follow_the_per_cell_definition() {
+        // A depth image with holes, odd sizes (a partial last cell), and the
+        // definitions written out plainly: the nearest nonzero depth of each
+        // 4x4 block; per cell, the nearest over the window where two thirds
+        // of its cells saw something.
+        let (width, height) = (37, 23);
+        let mut seed = 7u32;
+        let depth: Vec<u16> = (0..width * height)
+            .map(|_| {
+                seed = seed.wrapping_mul(1_103_515_245).wrapping_add(12_345);
+                let d = (seed >> 16) as u16;
+                if d.is_multiple_of(5) {
+                    0
+                } else {
+                    3000 + d % 20_000
+                }
+            })
+            .collect();
+        let cells = NearestDepth::new(&depth, width, height, 5000.0);
+        let (w, h) = (width.div_ceil(CELL), height.div_ceil(CELL));
+        for cy in 0..h {
+            for cx in 0..w {
+                let nearest = (cy * CELL..((cy + 1) * CELL).min(height))
+                    .flat_map(|y| (cx * CELL..((cx + 1) * CELL).min(width)).map(move |x| (x, y)))
+                    .map(|(x, y)| depth[y * width + x])
+                    .filter(|&d| d != 0)
+                    .min()
+                    .map_or(0.0, |d| (d as f64 / 5000.0) as f32);
+                assert_eq!(cells.metres[cy * w + cx], nearest, "cell {cx},{cy}");
+            }
+        }
+        let mut holes = cells.metres.clone();
+        for (i, m) in holes.iter_mut().enumerate() {
+            if i.is_multiple_of(3) || i.is_multiple_of(7) {
+                *m = 0.0; // more empty cells, so the two-thirds rule bites
+            }
+        }
+        let cells = NearestDepth {
+            metres: holes,
+            ..cells
+        };
+        for window in [0, 1, 2, 4, 9] {
+            let around = cells.around(window);
+            let all = ((2 * window + 1) * (2 * window + 1)) as u32;
+            for y in 0..h {
+                for x in 0..w {
+                    let (mut nearest, mut seen) = (f32::INFINITY, 0u32);
+                    for yy in y.saturating_sub(window)..(y + window + 1).min(h) {
+                        for xx in x.saturating_sub(window)..(x + window + 1).min(w) {
+                            let m = cells.metres[yy * w + xx];
+                            if m > 0.0 {
+                                seen += 1;
+                                nearest = nearest.min(m);
+                            }
+                        }
+                    }
+                    let want = if seen * 3 >= all * 2 { nearest } else { 0.0 };
+                    assert_eq!(
+                        around.metres[y * w + x],
+                        want,
+                        "window {window}, cell {x},{y}"
+                    );
+                }
+            }
+        }
     }
 
     /// Depth of a 640x480 view of a wall at 2 m, with a square at 1 m

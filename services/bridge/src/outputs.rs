@@ -66,6 +66,19 @@ fn diagonal(v: f64) -> [f64; 36] {
 /// stray far point cuts the grid rather than inflating the message.
 const GRID_MAX_SIDE: usize = 4000;
 
+/// Frame `t` was tracked, with masks.
+fn tracked_with_masks(t: &Track) -> bool {
+    TrackState::from_u32(t.state).is_some_and(TrackState::is_tracked)
+        && t.mask_source != MaskSource::None as u32
+}
+
+/// Where in `pending` the masks are that frame `t` was tracked with.
+fn masks_used(pending: &[PendingMasks], t: &Track) -> Option<usize> {
+    pending
+        .iter()
+        .position(|m| m.seq == t.seq && m.source == t.mask_source)
+}
+
 /// A frame's masks waiting for its Track.
 struct PendingMasks {
     seq: u64,
@@ -514,15 +527,9 @@ impl Outputs {
     /// after the other, so a Track read just now may follow masks that came
     /// after the masks were read (under load a mask image went missing so).
     pub fn awaits_masks_for(&self, t: &Track) -> bool {
-        let Some((_, pending)) = &self.masks else {
-            return false;
-        };
-        let tracked = TrackState::from_u32(t.state).is_some_and(TrackState::is_tracked);
-        tracked
-            && t.mask_source != MaskSource::None as u32
-            && !pending
-                .iter()
-                .any(|m| m.seq == t.seq && m.source == t.mask_source)
+        self.masks
+            .as_ref()
+            .is_some_and(|(_, pending)| tracked_with_masks(t) && masks_used(pending, t).is_none())
     }
 
     /// The masks the SLAM tracked frame `t` with, as a mono8 image.
@@ -532,12 +539,8 @@ impl Outputs {
         let Some((publisher, pending)) = &mut self.masks else {
             return Ok(());
         };
-        let used = pending
-            .iter()
-            .position(|m| m.seq == t.seq && m.source == t.mask_source);
-        let tracked = TrackState::from_u32(t.state).is_some_and(TrackState::is_tracked);
-        let result = match used {
-            Some(i) if tracked && t.mask_source != MaskSource::None as u32 => {
+        let result = match masks_used(pending, t) {
+            Some(i) if tracked_with_masks(t) => {
                 let m = &pending[i];
                 let header = Header {
                     stamp,

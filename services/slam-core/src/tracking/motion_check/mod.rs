@@ -244,7 +244,7 @@ impl MotionCheck {
             frame,
             (pose_cw, on_map, timestamp),
             past,
-            &around,
+            Some(&around),
             camera,
             p,
         );
@@ -266,20 +266,14 @@ impl MotionCheck {
             // Keypoints seen again elsewhere in it too: a mover that came
             // in at the border in the last 0.2 s is not in the older frame
             // (carried box: 94 -> 99 of 132 frames found; +1.4 ms a frame).
-            let (around, dense) = warp(recent);
+            let dense = warp(recent).1;
             // Only the keypoints the older frame did not show again: the
-            // others' evidence is in already (half the search's time).
+            // others' evidence is in already (half the search's time); the
+            // free-space test is the depth warp's here.
             let known: Vec<bool> = (0..frame.kps.len())
                 .map(|k| on_map.get(k).copied().unwrap_or(false) || evidence.found[k])
                 .collect();
-            let e = keypoint_evidence(
-                frame,
-                (pose_cw, &known, timestamp),
-                recent,
-                &around,
-                camera,
-                p,
-            );
+            let e = keypoint_evidence(frame, (pose_cw, &known, timestamp), recent, None, camera, p);
             out.extend(clusters(&e.moved, &e.matched_at, p));
             out.extend(dense);
         }
@@ -363,12 +357,14 @@ struct KeypointEvidence {
 
 /// `known[k]`: keypoint `k` is not looked for (an inlier of the pose, so
 /// where a static point is; or seen again in a frame looked at before): it
-/// counts as matched, unshifted.
+/// counts as matched, unshifted. The free-space test runs only with the
+/// older frame's surroundings (`around`; else `appeared` and `seen_at` stay
+/// empty).
 fn keypoint_evidence(
     frame: &Frame,
     (pose_cw, known, timestamp): (&Isometry3<f64>, &[bool], f64),
     past: &PastFrame,
-    around: &Around,
+    around: Option<&Around>,
     camera: &Camera,
     p: &MotionCheckParams,
 ) -> KeypointEvidence {
@@ -394,7 +390,7 @@ fn keypoint_evidence(
         }
         let (pu, pv) = camera.project(&there.coords);
         let allowed = p.min_move_m + p.move_per_m2 * z * z;
-        if let Some(seen) = around.nearest_at(camera.distort(pu, pv)) {
+        if let Some(seen) = around.and_then(|a| a.nearest_at(camera.distort(pu, pv))) {
             seen_at.push(Vector2::new(u, v));
             if seen - there.z > allowed {
                 appeared.push(Moved {

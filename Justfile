@@ -116,6 +116,9 @@ test: build setup evo fixtures pyiceoryx2 ros2py
     cargo fmt --all -- --check
     cargo clippy --release --workspace --all-targets -- -D warnings
     cargo test --release --workspace
+    # The portable pixel kernels forced, as on a CPU without the SIMD ones.
+    DYNSLAM_SIMD=off cargo test --release -p slam-core --test orb_kernels
+    DYNSLAM_SIMD=off cargo test --release -p slam-core --test core_tum tracks_the_whole_sequence
     # The SLAM library's example, alone on 30 shared frames.
     cargo run --release --quiet -p slam-core --example track_tum -- "{{tum}}" --limit 30 > /dev/null
     # A newcomer's path through the README: just run, their own TUM folder, real time, kills, the report.
@@ -133,6 +136,10 @@ bench-models: build setup
 # SLAM core speed and accuracy on a TUM folder (default: the shared sequence): ms per frame per step, peak memory, ATE.
 bench-slam dataset=tum *args="": build
     ./target/release/slam-bench "{{dataset}}" {{args}}
+
+# SLAM core speed against an older checkout's target/release, alternated in one invocation: extraction alone, extract, track and total p50 ms and ATE, with one and two extraction threads; medians, spreads and new/old ratios.
+bench-slam-compare old *args="": build
+    python3 tools/compare-slam.py '{{old}}' {{args}}
 
 # SLAM accuracy with frames left out as real time leaves them (the lever of the real-time ATE): ATE on every frame, then on every 2nd frame (2 offsets), every 3rd (3), and 30 % / 45 % dropped at random (3 seeds each); median, mean and worst over the 11 copies, and the median's ratio to every frame's.
 bench-dropped dataset=tum *args="": build

@@ -14,6 +14,7 @@
 //! idea; any monotone score works for non-maximum suppression).
 
 use super::orb::GrayU8;
+use super::simd::Kernels;
 
 /// The radius-3 Bresenham circle, clockwise from the top.
 pub(crate) const CIRCLE: [(isize, isize); 16] = [
@@ -38,33 +39,65 @@ pub(crate) const CIRCLE: [(isize, isize); 16] = [
 /// Pixels the circle needs on every side of a tested pixel.
 pub const RADIUS: usize = 3;
 
-/// FAST scores of one image at one threshold; keeps the circle's offsets
-/// for the image's row stride.
+/// FAST corners of one image; keeps the circle's offsets for the image's
+/// row stride.
 pub struct Fast<'a> {
     img: &'a GrayU8,
     offsets: [isize; 16],
+    kernels: Kernels,
     candidates: Vec<u8>,
 }
 
 impl<'a> Fast<'a> {
-    pub fn new(img: &'a GrayU8) -> Self {
+    pub fn new(img: &'a GrayU8, kernels: Kernels) -> Self {
         let w = img.width as isize;
         Self {
             img,
             offsets: CIRCLE.map(|(dx, dy)| dy * w + dx),
+            kernels,
             candidates: Vec::new(),
         }
     }
 
-    /// Scores of the pixels `x0..x1` of row `y` into `out` (0 where no
-    /// corner); true when any pixel scored. The span must keep `RADIUS`
-    /// pixels from every image border.
-    pub fn score_row(&mut self, y: usize, x0: usize, x1: usize, t: u8, out: &mut [f32]) -> bool {
+    /// The corners among pixels `x0..x1` of row `y` at threshold `t`: each
+    /// corner's x pushed to `corners` (ascending) and its score written to
+    /// `scores[x]` (`scores` is the row); other pixels of `scores` are left
+    /// as they are. The span must keep `RADIUS` pixels from every border.
+    pub fn corners_in_row(
+        &mut self,
+        y: usize,
+        (x0, x1): (usize, usize),
+        t: u8,
+        scores: &mut [u16],
+        corners: &mut Vec<u32>,
+    ) {
         let (w, h) = (self.img.width, self.img.height);
         assert!(
             y >= RADIUS && y + RADIUS < h && x0 >= RADIUS && x1 + RADIUS <= w && x0 <= x1,
             "FAST span {x0}..{x1} of row {y} within {RADIUS} px of the {w}x{h} image's border"
         );
+        assert!(scores.len() >= x1, "a score row shorter than the span");
+        match self.kernels {
+            #[cfg(target_arch = "x86_64")]
+            Kernels::Sse2 if x1 - x0 >= sse2::LANES => {
+                // SAFETY: every x86-64 CPU has SSE2.
+                unsafe { sse2::corners_in_row(self, y, (x0, x1), t, scores, corners) }
+            }
+            _ => self.portable_row(y, (x0, x1), t, scores, corners),
+        }
+    }
+
+    /// The pre-test over the span as plain Rust (the compiler vectorises
+    /// it), then the full test on its survivors.
+    fn portable_row(
+        &mut self,
+        y: usize,
+        (x0, x1): (usize, usize),
+        t: u8,
+        scores: &mut [u16],
+        corners: &mut Vec<u32>,
+    ) {
+        let w = self.img.width;
         let n = x1 - x0;
         let d = &self.img.data;
         let at = |dy: isize, dx: isize| {
@@ -90,29 +123,42 @@ impl<'a> Fast<'a> {
             },
         ));
         // Survivors are few: skip 8 rejected pixels at a time.
-        let out = &mut out[..n];
-        out.fill(0.0);
-        let mut any = false;
         for (chunk, flags) in self.candidates.chunks(8).enumerate() {
             if flags.iter().all(|&f| f == 0) {
                 continue;
             }
             for (j, &candidate) in flags.iter().enumerate() {
                 if candidate != 0 {
-                    let i = chunk * 8 + j;
-                    out[i] = self.full_test(y * w + x0 + i, t);
-                    any |= out[i] > 0.0;
+                    let x = x0 + chunk * 8 + j;
+                    self.score_candidate(y * w + x, t, x, scores, corners);
                 }
             }
         }
-        any
     }
 
-    /// The 16-pixel test at one pixel (flat index), after the pre-test.
+    /// The full test at a candidate; a corner is recorded.
     #[inline]
-    fn full_test(&self, centre: usize, t: u8) -> f32 {
+    fn score_candidate(
+        &self,
+        centre: usize,
+        t: u8,
+        x: usize,
+        scores: &mut [u16],
+        corners: &mut Vec<u32>,
+    ) {
+        let score = self.full_test(centre, t);
+        if score > 0 {
+            scores[x] = score;
+            corners.push(x as u32);
+        }
+    }
+
+    /// The 16-pixel test at one pixel (flat index), after the pre-test: the
+    /// corner's score, 0 for none.
+    #[inline]
+    fn full_test(&self, centre: usize, t: u8) -> u16 {
         let d = &self.img.data;
-        // One bounds check for the whole circle: `score_row` keeps the
+        // One bounds check for the whole circle: `corners_in_row` keeps the
         // circle inside the image, and the window holds every offset.
         let reach = 3 * self.img.width + 3;
         let window = &d[centre - reach..=centre + reach];
@@ -131,13 +177,195 @@ impl<'a> Fast<'a> {
         } else if has_arc_of_9(dark) {
             -1
         } else {
-            return 0.0;
+            return 0;
         };
-        let sum: i32 = circle
-            .iter()
-            .map(|&q| (sign * (q - p) - t).max(0) as i32)
-            .sum();
-        sum as f32
+        arc_score(&circle, p, t, sign)
+    }
+
+    /// The score of a corner known to be one (`bright` or dark) at a flat
+    /// index.
+    #[cfg(target_arch = "x86_64")]
+    #[inline]
+    fn corner_score(&self, centre: usize, t: u8, bright: bool) -> u16 {
+        let d = &self.img.data;
+        let reach = 3 * self.img.width + 3;
+        let window = &d[centre - reach..=centre + reach];
+        let circle: [i16; 16] =
+            std::array::from_fn(|k| window[(reach as isize + self.offsets[k]) as usize] as i16);
+        arc_score(
+            &circle,
+            d[centre] as i16,
+            t as i16,
+            if bright { 1 } else { -1 },
+        )
+    }
+}
+
+/// The sum of the differences beyond `t` on the corner's side (`sign` 1:
+/// brighter, -1: darker); at most 16 x 255, so it fits.
+#[inline]
+fn arc_score(circle: &[i16; 16], p: i16, t: i16, sign: i16) -> u16 {
+    circle
+        .iter()
+        .map(|&q| (sign * (q - p) - t).max(0) as u16)
+        .sum()
+}
+
+/// FAST with SSE2, 16 pixels at a time: the pre-test straight into a bit
+/// mask (no byte per pixel to write and scan again), the full test on the
+/// blocks with a candidate as run lengths per lane, the score per corner.
+#[cfg(target_arch = "x86_64")]
+mod sse2 {
+    use std::arch::x86_64::*;
+
+    use super::{Fast, CIRCLE};
+
+    pub const LANES: usize = 16;
+
+    #[target_feature(enable = "sse2")]
+    pub fn corners_in_row(
+        fast: &Fast,
+        y: usize,
+        (x0, x1): (usize, usize),
+        t: u8,
+        scores: &mut [u16],
+        corners: &mut Vec<u32>,
+    ) {
+        debug_assert!(x1 - x0 >= LANES);
+        let w = fast.img.width;
+        let data = &fast.img.data;
+        let mut x = x0;
+        while x < x1 {
+            // The last block overlaps the one before rather than reading
+            // past the span; the overlap's pixels are masked off.
+            let start = x.min(x1 - LANES);
+            let centre = y * w + start;
+            // Every lane's circle pixel (up to 3 rows and columns away) is
+            // inside the image: `Fast::corners_in_row` checked the span.
+            let block = Block::new(
+                &data[centre - (3 * w + 3)..centre + 3 * w + 3 + LANES],
+                w,
+                t,
+            );
+            if block.candidates() >> (x - start) != 0 {
+                let (bright, dark) = block.arcs_of_9();
+                let mut found = (bright | dark) >> (x - start);
+                while found != 0 {
+                    let lane = found.trailing_zeros() as usize;
+                    found &= found - 1;
+                    let is_bright = bright >> (x - start + lane) & 1 != 0;
+                    let at = x + lane;
+                    scores[at] = fast.corner_score(y * w + at, t, is_bright);
+                    corners.push(at as u32);
+                }
+            }
+            x = start + LANES;
+        }
+    }
+
+    /// 16 neighbouring pixels and their thresholds.
+    struct Block<'a> {
+        window: &'a [u8],
+        w: usize,
+        /// p + t and p - t per lane, saturated.
+        hi: __m128i,
+        lo: __m128i,
+    }
+
+    impl<'a> Block<'a> {
+        /// `window` runs from 3 rows and 3 columns before the first pixel
+        /// to 3 rows and 3 columns after the 16th.
+        #[inline]
+        #[target_feature(enable = "sse2")]
+        fn new(window: &'a [u8], w: usize, t: u8) -> Self {
+            assert_eq!(window.len(), 2 * (3 * w + 3) + LANES);
+            let mut block = Self {
+                window,
+                w,
+                hi: _mm_setzero_si128(),
+                lo: _mm_setzero_si128(),
+            };
+            let (p, tv) = (block.load(0, 0), _mm_set1_epi8(t as i8));
+            block.hi = _mm_adds_epu8(p, tv);
+            block.lo = _mm_subs_epu8(p, tv);
+            block
+        }
+
+        /// The 16 pixels `dx`, `dy` away from the block's.
+        #[inline]
+        #[target_feature(enable = "sse2")]
+        fn load(&self, dx: isize, dy: isize) -> __m128i {
+            assert!(dx.abs() <= 3 && dy.abs() <= 3);
+            let at = ((3 * self.w + 3) as isize + dy * self.w as isize + dx) as usize;
+            // SAFETY: at + 16 <= window.len() for |dx|, |dy| <= 3 (asserted
+            // here and in `new`).
+            unsafe { _mm_loadu_si128(self.window.as_ptr().add(at).cast()) }
+        }
+
+        /// All-ones lanes where `q` is not brighter than p + t, and where
+        /// it is not darker than p - t.
+        #[inline]
+        #[target_feature(enable = "sse2")]
+        fn not_bright_not_dark(&self, q: __m128i) -> (__m128i, __m128i) {
+            let zero = _mm_setzero_si128();
+            (
+                _mm_cmpeq_epi8(_mm_subs_epu8(q, self.hi), zero),
+                _mm_cmpeq_epi8(_mm_subs_epu8(self.lo, q), zero),
+            )
+        }
+
+        /// One bit per pixel that may be a corner: `portable_row`'s test
+        /// negated (no candidate when, for one pair of opposite circle
+        /// pixels, neither is brighter, and likewise for darker).
+        #[inline]
+        #[target_feature(enable = "sse2")]
+        fn candidates(&self) -> u32 {
+            let pairs = [
+                ((0, -3), (0, 3)),
+                ((3, 0), (-3, 0)),
+                ((2, -2), (-2, 2)),
+                ((2, 2), (-2, -2)),
+            ];
+            let (mut no_bright, mut no_dark) = (_mm_setzero_si128(), _mm_setzero_si128());
+            for ((ax, ay), (bx, by)) in pairs {
+                let (a_bright, a_dark) = self.not_bright_not_dark(self.load(ax, ay));
+                let (b_bright, b_dark) = self.not_bright_not_dark(self.load(bx, by));
+                no_bright = _mm_or_si128(no_bright, _mm_and_si128(a_bright, b_bright));
+                no_dark = _mm_or_si128(no_dark, _mm_and_si128(a_dark, b_dark));
+            }
+            !(_mm_movemask_epi8(_mm_and_si128(no_bright, no_dark)) as u32) & 0xFFFF
+        }
+
+        /// The lanes with 9 contiguous brighter circle pixels, and those
+        /// with 9 darker: the longest run per lane, counted around the
+        /// circle and 8 pixels further (runs may wrap).
+        #[inline]
+        #[target_feature(enable = "sse2")]
+        fn arcs_of_9(&self) -> (u32, u32) {
+            let ones = _mm_set1_epi8(-1);
+            let sides: [(__m128i, __m128i); 16] = std::array::from_fn(|k| {
+                let (dx, dy) = CIRCLE[k];
+                let (not_bright, not_dark) = self.not_bright_not_dark(self.load(dx, dy));
+                (
+                    _mm_xor_si128(not_bright, ones),
+                    _mm_xor_si128(not_dark, ones),
+                )
+            });
+            let zero = _mm_setzero_si128();
+            let (mut run_b, mut run_d, mut best_b, mut best_d) = (zero, zero, zero, zero);
+            for &(bright, dark) in sides.iter().chain(&sides[..8]) {
+                // A lane's run grows by one (minus all-ones) or is cut to 0.
+                run_b = _mm_and_si128(_mm_sub_epi8(run_b, bright), bright);
+                run_d = _mm_and_si128(_mm_sub_epi8(run_d, dark), dark);
+                best_b = _mm_max_epu8(best_b, run_b);
+                best_d = _mm_max_epu8(best_d, run_d);
+            }
+            let eight = _mm_set1_epi8(8);
+            (
+                _mm_movemask_epi8(_mm_cmpgt_epi8(best_b, eight)) as u32,
+                _mm_movemask_epi8(_mm_cmpgt_epi8(best_d, eight)) as u32,
+            )
+        }
     }
 }
 
@@ -209,27 +437,35 @@ mod tests {
     }
 
     #[test]
-    fn the_fast_path_scores_every_pixel_as_the_definition_does() {
+    fn every_kernel_scores_every_pixel_as_the_definition_does() {
         let img = noise(97, 61, 7);
-        let mut fast = Fast::new(&img);
-        let mut corners = 0;
-        for t in [1u8, 7, 20, 60, 200] {
-            for y in RADIUS..img.height - RADIUS {
-                let (x0, x1) = (RADIUS, img.width - RADIUS);
-                let mut row = vec![-1.0; x1 - x0];
-                fast.score_row(y, x0, x1, t, &mut row);
-                for (i, &s) in row.iter().enumerate() {
-                    assert_eq!(
-                        s,
-                        definition(&img, x0 + i, y, t as i16),
-                        "t {t} at ({}, {y})",
-                        x0 + i
-                    );
-                    corners += (s > 0.0) as usize;
+        for kernels in Kernels::all() {
+            let mut fast = Fast::new(&img, kernels);
+            let mut corners = 0;
+            for t in [1u8, 7, 20, 60, 200] {
+                for y in RADIUS..img.height - RADIUS {
+                    // The whole row, and spans that end mid-block.
+                    for (x0, x1) in [(RADIUS, img.width - RADIUS), (5, 22), (40, 75), (9, 9)] {
+                        let mut row = vec![0u16; img.width];
+                        let mut found = Vec::new();
+                        fast.corners_in_row(y, (x0, x1), t, &mut row, &mut found);
+                        for (x, &s) in row.iter().enumerate() {
+                            let expected = if (x0..x1).contains(&x) {
+                                definition(&img, x, y, t as i16)
+                            } else {
+                                0.0
+                            };
+                            assert_eq!(s as f32, expected, "{kernels:?} t {t} at ({x}, {y})");
+                        }
+                        let listed: Vec<u32> =
+                            (x0..x1).filter(|&x| row[x] > 0).map(|x| x as u32).collect();
+                        assert_eq!(found, listed, "{kernels:?} t {t} row {y}");
+                        corners += found.len();
+                    }
                 }
             }
+            assert!(corners > 500, "the image should have corners: {corners}");
         }
-        assert!(corners > 500, "the image should have corners: {corners}");
     }
 
     #[test]

@@ -4,15 +4,14 @@
 //! (round-robin over cells, best corner first), orientation by intensity
 //! centroid, and 256-bit rotated BRIEF descriptors on a smoothed image.
 //!
-//! The BRIEF test pattern is drawn once from an isotropic Gaussian
-//! (sigma = patch/5, the distribution Calonder et al. found best) with a
-//! fixed seed: descriptors are comparable across runs and machines.
+//! The descriptors are in `brief`, the corner test in `fast`.
 
 use std::borrow::Cow;
 use std::sync::Arc;
 
+use super::brief::Brief;
 use super::fast::Fast;
-use crate::rng::SplitMix64;
+use super::simd::Kernels;
 
 /// One keypoint, in level-0 pixel coordinates of the (distorted) image.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -112,14 +111,33 @@ impl GrayU8 {
             let i0 = f as usize;
             (i0, (i0 + 1).min(n - 1), f - i0 as f32)
         };
-        let columns: Vec<(usize, usize, f32)> = (0..w).map(|x| taps(x, sx, self.width)).collect();
-        let horizontal = |y: usize, out: &mut Vec<f32>| {
+        // Per output column: the left tap and the two weights. The source
+        // row is converted to f32 once, with its last pixel repeated, so the
+        // right tap is always the next one (where the left tap is the last
+        // pixel its weight is 0, as with a clamped right tap).
+        let (mut left, mut w_left, mut w_right) = (Vec::with_capacity(w), Vec::new(), Vec::new());
+        for x in 0..w {
+            let (x0, _, wx) = taps(x, sx, self.width);
+            left.push(x0 as u32);
+            w_left.push(1.0 - wx);
+            w_right.push(wx);
+        }
+        let mut source = vec![0f32; self.width + 1];
+        let mut horizontal = |y: usize, out: &mut Vec<f32>| {
             let row = &self.data[y * self.width..(y + 1) * self.width];
+            for (s, &v) in source.iter_mut().zip(row) {
+                *s = v as f32;
+            }
+            source[self.width] = row[self.width - 1] as f32;
             out.clear();
             out.extend(
-                columns
-                    .iter()
-                    .map(|&(x0, x1, wx)| row[x0] as f32 * (1.0 - wx) + row[x1] as f32 * wx),
+                left.iter()
+                    .zip(&w_left)
+                    .zip(&w_right)
+                    .map(|((&x0, &a), &b)| {
+                        let pair = &source[x0 as usize..x0 as usize + 2];
+                        pair[0] * a + pair[1] * b
+                    }),
             );
         };
         // The two source rows of the previous output row, by source index.
@@ -141,11 +159,13 @@ impl GrayU8 {
                 horizontal(y1, &mut bot);
                 bot_y = y1;
             }
-            data.extend(
-                top.iter()
-                    .zip(&bot)
-                    .map(|(&t, &b)| (t * (1.0 - wy) + b * wy + 0.5) as u8),
-            );
+            data.extend(top.iter().zip(&bot).map(|(&t, &b)| {
+                let v = t * (1.0 - wy) + b * wy + 0.5;
+                // SAFETY: v is finite and in [0.5, 255.5] (a blend of
+                // bytes plus 0.5). Unchecked, the conversion
+                // vectorises; `as u8` saturates pixel by pixel.
+                unsafe { v.to_int_unchecked::<i32>() as u8 }
+            }));
         }
         Self {
             width: w,
@@ -163,18 +183,22 @@ impl GrayU8 {
         for (row, out) in self.data.chunks_exact(w).zip(tmp.chunks_exact_mut(w)) {
             let at = |i: isize| row[i.clamp(0, w as isize - 1) as usize] as u16;
             let tap = |i: isize| at(i - 2) + 4 * at(i - 1) + 6 * at(i) + 4 * at(i + 1) + at(i + 2);
-            for (i, o) in out.iter_mut().enumerate() {
-                if i < 2 || i + 2 >= w {
-                    *o = tap(i as isize);
-                }
+            for i in (0..w.min(2)).chain(w.saturating_sub(2).max(2)..w) {
+                out[i] = tap(i as isize);
             }
             if w > 4 {
-                for (o, win) in out[2..w - 2].iter_mut().zip(row.windows(5)) {
-                    *o = win[0] as u16
-                        + 4 * win[1] as u16
-                        + 6 * win[2] as u16
-                        + 4 * win[3] as u16
-                        + win[4] as u16;
+                // Five shifted views rather than `windows(5)`: lane-wise
+                // sums that the compiler vectorises.
+                let n = w - 4;
+                let tap = |k: usize| &row[k..k + n];
+                let taps = tap(0)
+                    .iter()
+                    .zip(tap(1))
+                    .zip(tap(2))
+                    .zip(tap(3))
+                    .zip(tap(4));
+                for (o, ((((&a, &b), &c), &d), &e)) in out[2..w - 2].iter_mut().zip(taps) {
+                    *o = a as u16 + 4 * b as u16 + 6 * c as u16 + 4 * d as u16 + e as u16;
                 }
             }
         }
@@ -235,50 +259,35 @@ fn disc_half_widths() -> [isize; 16] {
     u
 }
 
-fn pattern() -> Vec<[(f32, f32); 2]> {
-    // Box-Muller on a fixed-seed stream: the descriptor layout never changes.
-    let mut rng = SplitMix64::new(0x0DB5_1A11_0000_0001);
-    let mut gauss = || {
-        let (u1, u2) = (rng.uniform(0.0, 1.0).max(1e-12), rng.uniform(0.0, 1.0));
-        ((-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()) as f32
-    };
-    let sigma = 31.0 / 5.0;
-    (0..256)
-        .map(|_| {
-            let mut pt = || {
-                (
-                    (gauss() * sigma).clamp(-13.0, 13.0),
-                    (gauss() * sigma).clamp(-13.0, 13.0),
-                )
-            };
-            [pt(), pt()]
-        })
-        .collect()
-}
-
 /// The extractor: holds the fixed BRIEF pattern.
 pub struct OrbExtractor {
     pub params: OrbParams,
-    /// The pattern's points, test after test (first, second, first, ...).
-    pattern_x: Vec<f32>,
-    pattern_y: Vec<f32>,
+    brief: Brief,
     disc: [isize; 16],
     /// Each level's scale relative to level 0 (`scale_factor^l`, f32 as
     /// the levels are resized), shared with the frames it extracts.
     level_scales: Arc<[f64]>,
+    /// SIMD or portable pixel kernels (the same features either way).
+    kernels: Kernels,
 }
 
 impl OrbExtractor {
     pub fn new(params: OrbParams) -> Self {
         Self {
             params,
-            pattern_x: pattern().iter().flatten().map(|p| p.0).collect(),
-            pattern_y: pattern().iter().flatten().map(|p| p.1).collect(),
+            brief: Brief::new(),
             disc: disc_half_widths(),
             level_scales: (0..params.levels)
                 .map(|l| params.scale_factor.powi(l as i32) as f64)
                 .collect(),
+            kernels: Kernels::selected(),
         }
+    }
+
+    /// The same extractor with the given pixel kernels (tests compare them).
+    pub fn with_kernels(mut self, kernels: Kernels) -> Self {
+        self.kernels = kernels;
+        self
     }
 
     /// Each pyramid level's scale relative to level 0.
@@ -336,7 +345,8 @@ impl OrbExtractor {
             };
             for (x, y, score) in corners {
                 let angle = self.orientation(lv.img, x, y);
-                out.descs.push(self.describe(&lv.smooth, x, y, angle));
+                out.descs
+                    .push(self.brief.describe(&lv.smooth, x, y, angle, self.kernels));
                 out.kps.push(KeyPoint {
                     x: to_level0(x, lv.scale),
                     y: to_level0(y, lv.scale),
@@ -390,67 +400,77 @@ impl OrbExtractor {
     ) -> (Vec<(usize, usize, f32)>, usize) {
         let img = lv.img;
         let (w, h) = (img.width, img.height);
-        let mut cells: Vec<Vec<(usize, usize, f32)>> = Vec::new();
-        let mut rejected = 0;
-        let mut scores = vec![0f32; w * h];
-        let mut fast = Fast::new(img);
+        let cols = (w - 2 * BORDER).div_ceil(CELL);
+        // Each cell's corners in scan order (row by row, x ascending).
+        let mut cells: Vec<Vec<(usize, usize)>> =
+            vec![Vec::new(); cols * (h - 2 * BORDER).div_ceil(CELL)];
+        // Corner scores, 0 elsewhere: what non-maximum suppression compares.
+        let mut scores = vec![0u16; w * h];
+        let mut fast = Fast::new(img, self.kernels);
+        let mut found = Vec::new();
         let (high, low) = (self.params.fast_threshold, self.params.fast_min_threshold);
-        for cy in (BORDER..h - BORDER).step_by(CELL) {
+        for (row, cy) in (BORDER..h - BORDER).step_by(CELL).enumerate() {
             let y1 = (cy + CELL).min(h - BORDER);
+            let band = &mut cells[row * cols..(row + 1) * cols];
             // The high threshold over the band's whole rows (long spans
             // vectorise), then the low one in the cells left without a corner.
             for y in cy..y1 {
-                fast.score_row(y, BORDER, w - BORDER, high, &mut scores[y * w + BORDER..]);
+                found.clear();
+                let span = (BORDER, w - BORDER);
+                fast.corners_in_row(y, span, high, &mut scores[y * w..(y + 1) * w], &mut found);
+                for &x in &found {
+                    band[(x as usize - BORDER) / CELL].push((x as usize, y));
+                }
             }
-            for cx in (BORDER..w - BORDER).step_by(CELL) {
-                let x1 = (cx + CELL).min(w - BORDER);
-                let cell_rows = || (cy..y1).map(|y| &scores[y * w + cx..y * w + x1]);
-                if cell_rows().any(|row| row.iter().any(|&s| s > 0.0)) {
+            for (cell, cx) in band.iter_mut().zip((BORDER..w - BORDER).step_by(CELL)) {
+                if !cell.is_empty() {
                     continue;
                 }
+                let span = (cx, (cx + CELL).min(w - BORDER));
                 for y in cy..y1 {
-                    fast.score_row(y, cx, x1, low, &mut scores[y * w + cx..]);
+                    found.clear();
+                    fast.corners_in_row(y, span, low, &mut scores[y * w..(y + 1) * w], &mut found);
+                    cell.extend(found.iter().map(|&x| (x as usize, y)));
                 }
             }
         }
-        for cy in (BORDER..h - BORDER).step_by(CELL) {
-            for cx in (BORDER..w - BORDER).step_by(CELL) {
-                let (x1, y1) = ((cx + CELL).min(w - BORDER), (cy + CELL).min(h - BORDER));
-                let mut cell = Vec::new();
-                for y in cy..y1 {
-                    for x in cx..x1 {
-                        let s = scores[y * w + x];
-                        if s <= 0.0 {
-                            continue;
-                        }
-                        // 3x3 non-maximum suppression.
-                        let mut best = true;
-                        'nms: for dy in -1isize..=1 {
-                            for dx in -1isize..=1 {
-                                if (dx, dy) != (0, 0) {
-                                    let n = scores[(y as isize + dy) as usize * w
-                                        + (x as isize + dx) as usize];
-                                    if n > s || (n == s && (dy < 0 || (dy == 0 && dx < 0))) {
-                                        best = false;
-                                        break 'nms;
-                                    }
-                                }
-                            }
-                        }
-                        if !best {
-                            continue;
-                        }
-                        if !keep(to_level0(x, lv.scale), to_level0(y, lv.scale)) {
-                            rejected += 1;
-                            continue;
-                        }
-                        cell.push((x, y, s));
+        // 3x3 non-maximum suppression (ties go to the corner scanned
+        // first), then the mask; each cell strongest first.
+        let mut rejected = 0;
+        let cells: Vec<Vec<(usize, usize, f32)>> = cells
+            .into_iter()
+            .map(|corners| {
+                let mut cell = Vec::with_capacity(corners.len());
+                for (x, y) in corners {
+                    let s = scores[y * w + x];
+                    let beaten = |dx: isize, dy: isize| {
+                        let n = scores[(y as isize + dy) as usize * w + (x as isize + dx) as usize];
+                        n > s || (n == s && (dy < 0 || (dy == 0 && dx < 0)))
+                    };
+                    const AROUND: [(isize, isize); 8] = [
+                        (-1, -1),
+                        (0, -1),
+                        (1, -1),
+                        (-1, 0),
+                        (1, 0),
+                        (-1, 1),
+                        (0, 1),
+                        (1, 1),
+                    ];
+                    if AROUND.iter().any(|&(dx, dy)| beaten(dx, dy)) {
+                        continue;
                     }
+                    if !keep(to_level0(x, lv.scale), to_level0(y, lv.scale)) {
+                        rejected += 1;
+                        continue;
+                    }
+                    cell.push((x, y, s as f32));
                 }
+                // Stable: equal scores stay in scan order.
                 cell.sort_by(|a, b| b.2.total_cmp(&a.2));
-                cells.push(cell);
-            }
-        }
+                cell
+            })
+            .collect();
         let mut out = Vec::with_capacity(target);
         let mut round = 0;
         while out.len() < target {
@@ -490,37 +510,6 @@ impl OrbExtractor {
         }
         (m01 as f32).atan2(m10 as f32)
     }
-
-    /// Rotated BRIEF: the pattern's 512 points rotated by `angle` into
-    /// pixel offsets in one vectorisable pass, then 256 comparisons.
-    fn describe(&self, smooth: &GrayU8, x: usize, y: usize, angle: f32) -> Descriptor {
-        let (s, c) = angle.sin_cos();
-        let w = smooth.width as i32;
-        let mut offsets = [0i32; 512];
-        for ((o, &px), &py) in offsets.iter_mut().zip(&self.pattern_x).zip(&self.pattern_y) {
-            *o = round_half_away(s * px + c * py) * w + round_half_away(c * px - s * py);
-        }
-        let centre = (y * smooth.width + x) as isize;
-        let at = |o: i32| smooth.data[(centre + o as isize) as usize];
-        let mut d = [0u64; 4];
-        for (i, pair) in offsets.chunks_exact(2).enumerate() {
-            // A data-dependent branch here would be mispredicted half the time.
-            d[i / 64] |= ((at(pair[0]) < at(pair[1])) as u64) << (i % 64);
-        }
-        d
-    }
-}
-
-/// `v.round()` (half away from zero) for |v| < 2^23 without the libm call
-/// that `f32::round` is on x86-64 (SSE4.1 has no such rounding mode): the
-/// truncation and the fraction are exact in that range.
-#[inline]
-fn round_half_away(v: f32) -> i32 {
-    let t = v as i32;
-    let fraction = v - t as f32;
-    // Comparisons as integers, not branches: the fractions of the rotated
-    // pattern are random, a branch would be mispredicted half the time.
-    t + (fraction >= 0.5) as i32 - (fraction <= -0.5) as i32
 }
 
 #[cfg(test)]
@@ -589,17 +578,6 @@ mod tests {
             total > 50 && good as f32 > 0.8 * total as f32,
             "{good}/{total}"
         );
-    }
-
-    #[test]
-    fn rounding_without_libm_is_f32_round() {
-        let mut v = -40.0f32;
-        while v <= 40.0 {
-            for x in [v, v.next_up(), v.next_down()] {
-                assert_eq!(round_half_away(x), x.round() as i32, "{x}");
-            }
-            v += 0.125;
-        }
     }
 
     #[test]

@@ -157,14 +157,8 @@ impl<'a> Fast<'a> {
     /// corner's score, 0 for none.
     #[inline]
     fn full_test(&self, centre: usize, t: u8) -> u16 {
-        let d = &self.img.data;
-        // One bounds check for the whole circle: `corners_in_row` keeps the
-        // circle inside the image, and the window holds every offset.
-        let reach = 3 * self.img.width + 3;
-        let window = &d[centre - reach..=centre + reach];
-        let circle: [i16; 16] =
-            std::array::from_fn(|k| window[(reach as isize + self.offsets[k]) as usize] as i16);
-        let p = d[centre] as i16;
+        let circle = self.circle(centre);
+        let p = self.img.data[centre] as i16;
         let t = t as i16;
         let (mut bright, mut dark) = (0u32, 0u32);
         for (k, &q) in circle.iter().enumerate() {
@@ -187,17 +181,23 @@ impl<'a> Fast<'a> {
     #[cfg(target_arch = "x86_64")]
     #[inline]
     fn corner_score(&self, centre: usize, t: u8, bright: bool) -> u16 {
-        let d = &self.img.data;
-        let reach = 3 * self.img.width + 3;
-        let window = &d[centre - reach..=centre + reach];
-        let circle: [i16; 16] =
-            std::array::from_fn(|k| window[(reach as isize + self.offsets[k]) as usize] as i16);
+        let p = self.img.data[centre] as i16;
         arc_score(
-            &circle,
-            d[centre] as i16,
+            &self.circle(centre),
+            p,
             t as i16,
             if bright { 1 } else { -1 },
         )
+    }
+
+    /// The 16 circle pixels around a flat index.
+    #[inline]
+    fn circle(&self, centre: usize) -> [i16; 16] {
+        // One bounds check for the whole circle: `corners_in_row` keeps the
+        // circle inside the image, and the window holds every offset.
+        let reach = 3 * self.img.width + 3;
+        let window = &self.img.data[centre - reach..=centre + reach];
+        std::array::from_fn(|k| window[(reach as isize + self.offsets[k]) as usize] as i16)
     }
 }
 

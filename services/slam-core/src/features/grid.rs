@@ -46,6 +46,23 @@ impl Grid {
     /// [`Self::near`] cell by cell, without copying the indices (for a
     /// caller that visits many of them once).
     pub fn cells_near(&self, u: f64, v: f64, r: f64) -> impl Iterator<Item = &[usize]> {
+        let (xs, ys) = self.span(u, v, r);
+        ys.flat_map(move |cy| {
+            xs.clone()
+                .map(move |cx| self.cells[cy * self.cols + cx].as_slice())
+        })
+    }
+
+    /// The columns and rows of the cells within `r` of (u, v).
+    fn span(
+        &self,
+        u: f64,
+        v: f64,
+        r: f64,
+    ) -> (
+        std::ops::RangeInclusive<usize>,
+        std::ops::RangeInclusive<usize>,
+    ) {
         let (x0, x1) = (
             ((u - r) / self.cell).floor() + 1.0,
             ((u + r) / self.cell).floor() + 1.0,
@@ -54,10 +71,74 @@ impl Grid {
             ((v - r) / self.cell).floor() + 1.0,
             ((v + r) / self.cell).floor() + 1.0,
         );
-        let xs = x0.max(0.0) as usize..=(x1.max(0.0) as usize).min(self.cols - 1);
-        (y0.max(0.0) as usize..=(y1.max(0.0) as usize).min(self.rows - 1)).flat_map(move |cy| {
-            xs.clone()
-                .map(move |cx| self.cells[cy * self.cols + cx].as_slice())
-        })
+        (
+            x0.max(0.0) as usize..=(x1.max(0.0) as usize).min(self.cols - 1),
+            y0.max(0.0) as usize..=(y1.max(0.0) as usize).min(self.rows - 1),
+        )
+    }
+
+    /// The indices in cell order (cells row by row) and where each cell
+    /// starts in that order (one entry more than cells): for a caller that
+    /// copies its items in this order, [`Self::rows_near`] gives the cells
+    /// near a point as one contiguous range per row of cells.
+    pub fn cell_order(&self) -> (Vec<usize>, Vec<usize>) {
+        let mut order = Vec::with_capacity(self.cells.iter().map(Vec::len).sum());
+        let mut starts = Vec::with_capacity(self.cells.len() + 1);
+        for cell in &self.cells {
+            starts.push(order.len());
+            order.extend_from_slice(cell);
+        }
+        starts.push(order.len());
+        (order, starts)
+    }
+
+    /// The cells within `r` of (u, v) (the square of [`Self::near`]) as
+    /// ranges of [`Self::cell_order`]'s order, one per row of cells.
+    pub fn rows_near<'a>(
+        &self,
+        starts: &'a [usize],
+        u: f64,
+        v: f64,
+        r: f64,
+    ) -> impl Iterator<Item = std::ops::Range<usize>> + 'a {
+        assert_eq!(starts.len(), self.cells.len() + 1, "starts of another grid");
+        let (xs, ys) = self.span(u, v, r);
+        let cols = self.cols;
+        // A square beyond the right border has start > end: empty runs.
+        let (x1, x0) = (xs.end() + 1, (*xs.start()).min(xs.end() + 1));
+        ys.map(move |cy| starts[cy * cols + x0]..starts[cy * cols + x1])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rows_near_cover_the_same_points_as_near() {
+        let mut rng = crate::rng::SplitMix64::new(5);
+        let points: Vec<(f64, f64)> = (0..500)
+            .map(|_| (rng.uniform(-10.0, 650.0), rng.uniform(-10.0, 490.0)))
+            .collect();
+        let grid = Grid::new(&points, 640, 480);
+        let (order, starts) = grid.cell_order();
+        let mut near = Vec::new();
+        for (u, v, r) in [
+            (320.0, 240.0, 40.0),
+            (5.0, 5.0, 120.0),
+            (630.0, 470.0, 17.0),
+            (-50.0, 0.0, 30.0),
+            (900.0, 600.0, 40.0),
+            (900.0, 200.0, 40.0),
+        ] {
+            grid.near(u, v, r, &mut near);
+            let mut by_rows: Vec<usize> = grid
+                .rows_near(&starts, u, v, r)
+                .flat_map(|range| order[range].to_vec())
+                .collect();
+            near.sort_unstable();
+            by_rows.sort_unstable();
+            assert_eq!(by_rows, near, "({u}, {v}) r {r}");
+        }
     }
 }

@@ -30,7 +30,7 @@ use std::collections::VecDeque;
 use nalgebra::{Isometry3, Vector2};
 
 use crate::camera::Camera;
-use crate::features::orb::hamming;
+use crate::features::orb::{hamming, Descriptor};
 use crate::frame::Frame;
 
 mod depth;
@@ -133,10 +133,36 @@ impl MovingRegion {
 struct PastFrame {
     timestamp: f64,
     frame: Frame,
+    /// The frame's keypoints in its grid's cell order, for the search.
+    by_cell: ByCell,
     pose_cw: Isometry3<f64>,
     depth: NearestDepth,
     /// How fast the camera turned then (rad/s; 0 when not known).
     turn_rate: f64,
+}
+
+/// A frame's keypoint levels and descriptors copied in its grid's cell
+/// order: the candidates of a search are then a few contiguous runs (one
+/// per row of cells) rather than an index per candidate into the frame.
+struct ByCell {
+    /// Keypoint index in the frame.
+    index: Vec<usize>,
+    levels: Vec<u8>,
+    descs: Vec<Descriptor>,
+    /// Where each grid cell starts in the order (`Grid::cell_order`).
+    starts: Vec<usize>,
+}
+
+impl ByCell {
+    fn new(frame: &Frame) -> Self {
+        let (index, starts) = frame.grid.cell_order();
+        Self {
+            levels: index.iter().map(|&k| frame.kps[k].level).collect(),
+            descs: index.iter().map(|&k| frame.descs[k]).collect(),
+            index,
+            starts,
+        }
+    }
 }
 
 /// An image size and the ideal pixel and ray of each of its depth cells'
@@ -330,6 +356,7 @@ impl MotionCheck {
         }
         self.history.push_back(PastFrame {
             timestamp,
+            by_cell: ByCell::new(frame),
             frame: frame.clone(),
             pose_cw: *pose_cw,
             depth,
@@ -412,19 +439,27 @@ fn keypoint_evidence(
         let radius = p.search_px.min(p.search_margin_px + reach);
         let level = frame.kps[k].level as i32;
         let desc = &frame.descs[k];
-        let (mut best, mut second, mut best_j) = (u32::MAX, u32::MAX, None);
-        for &j in past.frame.grid.cells_near(pu, pv, radius).flatten() {
-            if (past.frame.kps[j].level as i32 - level).abs() > 1 {
-                continue;
-            }
-            let d = hamming(desc, &past.frame.descs[j]);
-            if d < best {
-                (second, best, best_j) = (best, d, Some(j));
-            } else if d < second {
-                second = d;
+        let (mut best, mut second, mut best_i) = (u32::MAX, u32::MAX, None);
+        let cells = &past.by_cell;
+        for run in past.frame.grid.rows_near(&cells.starts, pu, pv, radius) {
+            let candidates = cells.levels[run.clone()]
+                .iter()
+                .zip(&cells.descs[run.clone()]);
+            for (i, (&l, d)) in run.zip(candidates) {
+                if (l as i32 - level).abs() > 1 {
+                    continue;
+                }
+                let d = hamming(desc, d);
+                if d < best {
+                    (second, best, best_i) = (best, d, Some(i));
+                } else if d < second {
+                    second = d;
+                }
             }
         }
-        let Some(j) = best_j else { continue };
+        let Some(j) = best_i.map(|i| cells.index[i]) else {
+            continue;
+        };
         if best > p.max_hamming || (second != u32::MAX && best as f64 > p.ratio * second as f64) {
             continue;
         }

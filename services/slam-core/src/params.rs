@@ -96,8 +96,9 @@ pub struct SlamParams {
     /// loop-closing thread, merged as ORB-SLAM2 does).
     pub global_bundle_adjustment: bool,
     /// RGB-D: drop features in regions that move unlike the camera
-    /// ([`crate::tracking::motion_check`]), movers no mask names. Off by
-    /// default until it finds movers reliably (docs/models.md "Motion check").
+    /// ([`crate::tracking::motion_check`]), movers no mask names. On by
+    /// default: the largest gain measured on real people walking (ATE
+    /// 0.0188 -> 0.0151 m), about 1.7 ms a frame (docs/models.md "Motion check").
     pub motion_check: bool,
     /// After frames were left out (real time on a busy machine), tracking
     /// starts from the turn found by aligning the frame's small image with
@@ -146,7 +147,7 @@ impl Default for SlamParams {
             fuse_points: false,
             loop_closing: false,
             global_bundle_adjustment: true,
-            motion_check: false,
+            motion_check: true,
             turn_from_images: true,
         }
     }

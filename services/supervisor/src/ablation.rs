@@ -92,9 +92,9 @@ pub fn variants(static_original: Option<PathBuf>) -> Vec<Variant> {
         },
         Variant {
             key: "h",
-            label: "(h) product routing, with the SLAM's motion check",
+            label: "(h) product routing, without the SLAM's motion check",
             dataset: None,
-            apply: |c| c.services.slam.motion_check = true,
+            apply: |c| c.services.slam.motion_check = false,
         },
         Variant {
             key: "i",
@@ -251,7 +251,7 @@ mod tests {
         assert_eq!(applied("f").services.segmenter.input_size, Some(320));
         assert_eq!(applied("g").services.segmenter.input_size, Some(640));
         assert_ne!(base.services.segmenter.input_size, Some(320));
-        assert!(applied("h").services.slam.motion_check && !base.services.slam.motion_check);
+        assert!(!applied("h").services.slam.motion_check && base.services.slam.motion_check);
         assert!(
             !applied("i").routing.early_segment_requests && base.routing.early_segment_requests
         );

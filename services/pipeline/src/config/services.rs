@@ -261,7 +261,7 @@ pub struct SlamConfig {
     /// closes (`loops.csv` in the run folder; off by default).
     pub loop_closing: bool,
     /// RGB-D: drop features in image regions that move unlike the camera
-    /// (movers no class list names; `features_moving` in frames.csv; off by
+    /// (movers no class list names; `features_moving` in frames.csv; on by
     /// default).
     pub motion_check: bool,
     /// `rgbd` (colour and depth) or `monocular` (colour only: depth
@@ -288,7 +288,7 @@ impl Default for SlamConfig {
             save_map: None,
             localize_only: false,
             loop_closing: false,
-            motion_check: false,
+            motion_check: true,
             sensor: "rgbd".into(),
         }
     }

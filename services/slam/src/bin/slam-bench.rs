@@ -5,7 +5,7 @@
 //!
 //! `slam-bench [DATASET] [--masks] [--skip N] [--limit N] [--threads N] [--local-ba N]
 //! [--readout S] [--inline-mapping] [--no-triangulation] [--fusion] [--loop-closing [--no-global-ba]]
-//! [--features N] [--match-ratio R] [--monocular] [--extractor own|kornia] [--no-image-turn]
+//! [--no-motion-check] [--features N] [--match-ratio R] [--monocular] [--extractor own|kornia] [--no-image-turn]
 //! [--keep-every N [--offset K]] [--drop-share P [--seed S]] [--frames-of trajectory.txt] [--verbose]
 //! [--out trajectory.txt]`
 //! `--keep-every` and `--drop-share` leave frames out as real time does on a
@@ -111,10 +111,11 @@ struct Args {
     /// default); prints loops closed and loop-detection time per keyframe.
     #[arg(long)]
     loop_closing: bool,
-    /// RGB-D motion check on (off by default): drop features in regions
-    /// that move unlike the camera; prints how many were dropped.
+    /// RGB-D motion check off (it is on by default, as in the product: it
+    /// drops features in regions that move unlike the camera and prints how
+    /// many it dropped).
     #[arg(long)]
-    motion_check: bool,
+    no_motion_check: bool,
     /// Track from the motion model's turn alone, not the one the small
     /// images give where the two disagree (to compare).
     #[arg(long)]
@@ -269,7 +270,7 @@ fn main() -> Result<()> {
     params.triangulate = !args.no_triangulation;
     params.fuse_points = args.fusion;
     params.loop_closing = args.loop_closing;
-    params.motion_check = args.motion_check;
+    params.motion_check = !args.no_motion_check;
     params.turn_from_images = !args.no_image_turn;
     params.global_bundle_adjustment = !args.no_global_ba;
     if let Some(n) = args.features {
@@ -439,7 +440,7 @@ fn main() -> Result<()> {
         "relocalisations (by bag of words): {relocalised}; young maps lost and started again: {}",
         system.map_restarts()
     );
-    if args.motion_check {
+    if params.motion_check {
         println!(
             "motion check: {moving} of {features} features dropped ({:.2} %)",
             100.0 * moving as f64 / features.max(1) as f64

@@ -117,8 +117,8 @@ test: build setup evo fixtures pyiceoryx2 ros2py
     cargo clippy --release --workspace --all-targets -- -D warnings
     cargo test --release --workspace
     # The portable pixel kernels forced, as on a CPU without the SIMD ones.
-    DYNSLAM_SIMD=off cargo test --release -p slam-core --test orb_kernels
-    DYNSLAM_SIMD=off cargo test --release -p slam-core --test core_tum tracks_the_whole_sequence
+    DYNSLAM_SIMD=off cargo test --release --workspace --test orb_kernels
+    DYNSLAM_SIMD=off cargo test --release --workspace --test core_tum tracks_the_whole_sequence
     # The SLAM library's example, alone on 30 shared frames.
     cargo run --release --quiet -p slam-core --example track_tum -- "{{tum}}" --limit 30 > /dev/null
     # A newcomer's path through the README: just run, their own TUM folder, real time, kills, the report.
@@ -162,7 +162,7 @@ bench-dropped dataset=tum *args="": build
         m = v[int((NR + 1) / 2)]
         printf "frames left out, %d copies: median %.4f m (%.2fx every frame), mean %.4f m, worst %.4f m\n", NR, m, m / full, s / NR, v[NR] }'
 
-# The whole pipeline in real time on the shared sequence: 30 and 60 fps, each without and with 2 busy processes pinned to the cores; tracked fps, drops, end-to-end p50/p99, masked share, keyframes and ATE next to lockstep's; and a kill row: 30 fps with the SLAM killed 5 times a run, frames without a pose per kill and the time to the next pose (writes bench-results/realtime.json).
+# The whole pipeline in real time on the shared sequence: 30 and 60 fps, each without and with 2 busy processes pinned to the cores, and 30 fps with 2 busy and the segmenter at 480 px; tracked fps, drops, end-to-end p50/p99, masked share, keyframes and ATE next to lockstep's; and a kill row: 30 fps with the SLAM killed 5 times a run, frames without a pose per kill and the time to the next pose (writes bench-results/realtime.json).
 bench-realtime *args="": build setup
     ./target/release/realtime-bench --slam-kills 5 {{args}}
 

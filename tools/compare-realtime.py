@@ -5,7 +5,7 @@ Runs each build's `realtime-bench` (one run per condition per call, the builds t
 which goes first) and prints per condition the median and the spread of each build's runs, and
 the ratio of the medians. Usage:
 
-    tools/compare-realtime.py OLD_RELEASE_DIR [--runs 3] [--only 30:0,30:2,60:2]
+    tools/compare-realtime.py OLD_RELEASE_DIR [--runs 3] [--only 30:0,30:2,60:2,30:2:480]
 
 OLD_RELEASE_DIR is another checkout's target/release (its realtime-bench and services).
 """
@@ -46,7 +46,7 @@ def main() -> None:
     p.add_argument("--new", type=Path, default=here / "target/release", help="this build (default: target/release)")
     p.add_argument("--dataset", default=str(here.parent / "shared/data/tum/rgbd_dataset_freiburg1_rpy_first300"))
     p.add_argument("--runs", type=int, default=3, help="runs per condition and build")
-    p.add_argument("--only", default="30:0,30:2,60:2", help="conditions, FPS:BUSY pairs")
+    p.add_argument("--only", default="30:0,30:2,60:2", help="conditions, FPS:BUSY or FPS:BUSY:SEGMENTER_PX (an older realtime-bench may not take the third)")
     a = p.parse_args()
     builds = {"old": a.old.resolve(), "new": a.new.resolve()}
     results = {"old": [], "new": []}
@@ -58,22 +58,23 @@ def main() -> None:
                 print(f"run {i + 1}/{a.runs}: {name} ({builds[name]})", file=sys.stderr, flush=True)
                 out = tmp / f"{name}-{i}.json"
                 results[name] += bench(builds[name], a.dataset, a.only, out, tmp / "runs")
-    conditions = sorted({(r["fps_in"], r["busy_processes"]) for r in results["new"]})
+    conditions = sorted({(r["fps_in"], r["busy_processes"], r.get("segmenter_px") or 0) for r in results["new"]})
     print(f"real time, {a.runs} runs per condition and build, alternated; median [min-max]")
-    print(f"{'fps':>4} {'busy':>4} {'figure':>12} {'old':>24} {'new':>24} {'new/old':>8}")
-    for fps, busy in conditions:
+    print(f"{'fps':>4} {'busy':>4} {'seg px':>6} {'figure':>12} {'old':>24} {'new':>24} {'new/old':>8}")
+    for fps, busy, px in conditions:
         for key, label, scale in FIGURES:
             cells = {}
             for name in ("old", "new"):
                 v = [r[key] * scale for r in results[name]
-                     if r["fps_in"] == fps and r["busy_processes"] == busy and r.get(key) is not None]
+                     if r["fps_in"] == fps and r["busy_processes"] == busy
+                     and (r.get("segmenter_px") or 0) == px and r.get(key) is not None]
                 cells[name] = (statistics.median(v), min(v), max(v)) if v else None
             def fmt(c):
                 return "-" if c is None else f"{c[0]:.1f} [{c[1]:.1f}-{c[2]:.1f}]"
             ratio = "-"
             if cells["old"] and cells["new"] and cells["old"][0]:
                 ratio = f"{cells['new'][0] / cells['old'][0]:.2f}"
-            print(f"{fps:>4.0f} {busy:>4} {label:>12} {fmt(cells['old']):>24} {fmt(cells['new']):>24} {ratio:>8}")
+            print(f"{fps:>4.0f} {busy:>4} {px or '-':>6} {label:>12} {fmt(cells['old']):>24} {fmt(cells['new']):>24} {ratio:>8}")
 
 
 if __name__ == "__main__":

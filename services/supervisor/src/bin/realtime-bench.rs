@@ -22,7 +22,7 @@
 //! CPU share and RSS of the SLAM and of its standby (sampled before the
 //! first kill).
 //!
-//! `realtime-bench [DATASET] [--runs N] [--load N] [--only 30:0,60:2] [--no-lockstep] [--bridge ENDPOINT] [--slam-kills N] [--out FILE]`
+//! `realtime-bench [DATASET] [--runs N] [--load N] [--only 30:0,60:2,30:2:480] [--no-lockstep] [--bridge ENDPOINT] [--slam-kills N] [--out FILE]`
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -59,10 +59,13 @@ struct Args {
     /// the source, mode and fps on top.
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Conditions to run, as FPS:BUSY pairs (e.g. `30:0,60:2`); default:
-    /// 30 and 60 fps, each without load and with `--load` busy processes.
+    /// Conditions to run, as FPS:BUSY or FPS:BUSY:SEGMENTER_PX (e.g.
+    /// `30:0,60:2,30:2:480`; without PX the segmenter runs at real time's
+    /// default input size); default: 30 and 60 fps, each without load and
+    /// with `--load` busy processes, and 30 fps with `--load` busy
+    /// processes and the segmenter at 480 px.
     #[arg(long, value_delimiter = ',', value_parser = parse_condition)]
-    only: Vec<(u32, usize)>,
+    only: Vec<Condition>,
     /// Skip the lockstep reference run (no lockstep ATE in the table).
     #[arg(long)]
     no_lockstep: bool,
@@ -79,11 +82,23 @@ struct Args {
     burn: Option<usize>,
 }
 
+/// What a run is played at: input rate, busy processes beside it, and the
+/// segmenter's input size when not the mode's default.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Condition {
+    fps: u32,
+    busy: usize,
+    segmenter_px: Option<u32>,
+}
+
 /// One real-time run's figures.
 #[derive(Debug, Clone, Serialize)]
 struct RunFigures {
     fps_in: f64,
     busy_processes: usize,
+    /// The segmenter's input size when the condition set one (else the
+    /// mode's default).
+    segmenter_px: Option<u32>,
     /// The ROS 2 bridge ran (`--bridge`).
     bridge: bool,
     frames: usize,
@@ -209,14 +224,33 @@ fn main() -> Result<()> {
     let lockstep_ate = lockstep.as_ref().and_then(|l| l.ate_rmse_m);
     let lockstep_keyframes = lockstep.as_ref().map(|l| l.keyframes);
     let conditions = if args.only.is_empty() {
-        vec![(30, 0), (30, args.load), (60, 0), (60, args.load)]
+        let at = |fps, busy, segmenter_px| Condition {
+            fps,
+            busy,
+            segmenter_px,
+        };
+        vec![
+            at(30, 0, None),
+            at(30, args.load, None),
+            at(60, 0, None),
+            at(60, args.load, None),
+            // The larger segmenter input with the motion check (on by
+            // default) on a loaded machine: what the CPU has to spare.
+            at(30, args.load, Some(480)),
+        ]
     } else {
         args.only.clone()
     };
     let mut runs = Vec::new();
     // The recorded sequence is 30 fps: other rates play it faster or slower.
-    for &(fps_in, load) in &conditions {
+    for &Condition {
+        fps: fps_in,
+        busy: load,
+        segmenter_px,
+    } in &conditions
+    {
         let (fps, speed) = (f64::from(fps_in), f64::from(fps_in) / 30.0);
+        let px_tag = segmenter_px.map_or(String::new(), |px| format!("-{px}"));
         for i in 0..args.runs {
             // Bridge off and on alternate which goes first.
             let arms = match (&args.bridge, i % 2) {
@@ -228,7 +262,8 @@ fn main() -> Result<()> {
                 let burners = start_load(load)?;
                 let on = bridge.is_some();
                 let id = format!(
-                    "rtb-{batch}-{fps}fps-load{load}-{i}{}",
+                    // Run ids are at most 32 characters.
+                    "rtb-{batch}-{fps}fps-l{load}{px_tag}-{i}{}",
                     if on { "-br" } else { "" }
                 );
                 let result = run_once(
@@ -239,6 +274,9 @@ fn main() -> Result<()> {
                     |c| {
                         c.run.mode = ClockMode::Realtime;
                         c.run.speed = speed;
+                        if segmenter_px.is_some() {
+                            c.services.segmenter.input_size = segmenter_px;
+                        }
                         if let Some(endpoint) = bridge {
                             c.bridge.enabled = true;
                             c.bridge.connect = vec![endpoint];
@@ -250,9 +288,11 @@ fn main() -> Result<()> {
                 let mut f = result?;
                 f.fps_in = fps;
                 f.busy_processes = load;
+                f.segmenter_px = segmenter_px;
                 f.bridge = on;
                 eprintln!(
-                    "{fps} fps, {load} busy{}: {:.1} tracked fps, {:.1} % dropped, e2e p99 {}, ATE {}",
+                    "{fps} fps, {load} busy{}{}: {:.1} tracked fps, {:.1} % dropped, e2e p99 {}, ATE {}",
+                    segmenter_px.map_or(String::new(), |px| format!(", segmenter {px} px")),
                     if on { ", bridge on" } else { "" },
                     f.tracked_fps,
                     f.dropped_pct,
@@ -306,9 +346,10 @@ fn main() -> Result<()> {
         args.runs
     );
     println!(
-        "{:>6} {:>5} {:>6} {:>18} {:>9} {:>10} {:>10} {:>8} {:>9} {:>14} {:>22}",
+        "{:>6} {:>5} {:>6} {:>6} {:>18} {:>9} {:>10} {:>10} {:>8} {:>9} {:>14} {:>22}",
         "fps in",
         "busy",
+        "seg px",
         "bridge",
         "tracked fps",
         "dropped",
@@ -324,14 +365,19 @@ fn main() -> Result<()> {
     } else {
         &[false]
     };
-    for (&(fps_in, load), &bridge) in conditions
+    for (condition, &bridge) in conditions
         .iter()
         .flat_map(|c| arms.iter().map(move |b| (c, b)))
     {
-        let fps = f64::from(fps_in);
+        let (fps, load) = (f64::from(condition.fps), condition.busy);
         let group: Vec<&RunFigures> = runs
             .iter()
-            .filter(|r| r.fps_in == fps && r.busy_processes == load && r.bridge == bridge)
+            .filter(|r| {
+                r.fps_in == fps
+                    && r.busy_processes == load
+                    && r.segmenter_px == condition.segmenter_px
+                    && r.bridge == bridge
+            })
             .collect();
         let med = |f: &dyn Fn(&RunFigures) -> Option<f64>| {
             let mut v: Vec<f64> = group.iter().filter_map(|r| f(r)).collect();
@@ -343,9 +389,12 @@ fn main() -> Result<()> {
             .map(|r| r.tracked_fps)
             .fold(f64::INFINITY, f64::min);
         println!(
-            "{:>6} {:>5} {:>6} {:>10.1} ({:>5.1}) {:>8.1}% {:>10} {:>10} {:>7.0}% {:>8.0}% {:>6.0} ({:>5}) {:>10} ({})",
+            "{:>6} {:>5} {:>6} {:>6} {:>10.1} ({:>5.1}) {:>8.1}% {:>10} {:>10} {:>7.0}% {:>8.0}% {:>6.0} ({:>5}) {:>10} ({})",
             fps,
             load,
+            condition
+                .segmenter_px
+                .map_or("-".to_string(), |px| px.to_string()),
             if bridge { "on" } else { "off" },
             med(&|r| Some(r.tracked_fps)).unwrap_or(0.0),
             worst_fps,
@@ -545,6 +594,7 @@ fn figures(rows: &[FrameRow], speed: f64, run_dir: PathBuf) -> RunFigures {
     RunFigures {
         fps_in: 0.0,
         busy_processes: 0,
+        segmenter_px: None,
         bridge: false,
         frames: rows.len(),
         tracked: tracked.len(),
@@ -610,11 +660,26 @@ fn burn(core: usize) -> ! {
     }
 }
 
-/// `FPS:BUSY` of `--only`.
-fn parse_condition(s: &str) -> Result<(u32, usize), String> {
-    let (fps, busy) = s
-        .split_once(':')
-        .ok_or_else(|| format!("'{s}': expected FPS:BUSY, e.g. 30:0 or 60:2"))?;
+/// `FPS:BUSY[:SEGMENTER_PX]` of `--only`.
+fn parse_condition(s: &str) -> Result<Condition, String> {
+    let (fps, rest) = s.split_once(':').ok_or_else(|| {
+        format!("'{s}': expected FPS:BUSY or FPS:BUSY:PX, e.g. 30:0, 60:2 or 30:2:480")
+    })?;
+    let (busy, px) = match rest.split_once(':') {
+        Some((busy, px)) => (busy, Some(px)),
+        None => (rest, None),
+    };
+    let segmenter_px = px
+        .map(|px| {
+            px.trim()
+                .parse::<u32>()
+                .ok()
+                .filter(|&p| (32..=4096).contains(&p) && p % 32 == 0)
+                .ok_or_else(|| {
+                    format!("'{s}': the segmenter input size '{px}' is not a multiple of 32 in 32..=4096")
+                })
+        })
+        .transpose()?;
     let fps: u32 =
         fps.trim().parse().ok().filter(|&f| f > 0).ok_or_else(|| {
             format!("'{s}': the frame rate '{fps}' is not a positive whole number")
@@ -623,7 +688,11 @@ fn parse_condition(s: &str) -> Result<(u32, usize), String> {
         .trim()
         .parse()
         .map_err(|_| format!("'{s}': the busy process count '{busy}' is not a whole number"))?;
-    Ok((fps, busy))
+    Ok(Condition {
+        fps,
+        busy,
+        segmenter_px,
+    })
 }
 
 fn fmt_m(v: Option<f64>) -> String {
@@ -632,4 +701,31 @@ fn fmt_m(v: Option<f64>) -> String {
 
 fn fmt_ms(v: Option<f64>) -> String {
     v.map_or("-".into(), |v| format!("{v:.0} ms"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn conditions_parse_with_and_without_a_segmenter_size_and_bad_ones_are_named() {
+        let c = |fps, busy, segmenter_px| Condition {
+            fps,
+            busy,
+            segmenter_px,
+        };
+        assert_eq!(parse_condition("30:2"), Ok(c(30, 2, None)));
+        assert_eq!(parse_condition(" 60 : 0 "), Ok(c(60, 0, None)));
+        assert_eq!(parse_condition("30:2:480"), Ok(c(30, 2, Some(480))));
+        for (bad, says) in [
+            ("30", "expected FPS:BUSY"),
+            ("0:2", "frame rate '0'"),
+            ("30:x", "busy process count 'x'"),
+            ("30:2:500", "input size '500'"),
+            ("30:2:", "input size ''"),
+        ] {
+            let e = parse_condition(bad).unwrap_err();
+            assert!(e.contains(says), "{bad}: {e}");
+        }
+    }
 }

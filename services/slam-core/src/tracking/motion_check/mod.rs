@@ -30,6 +30,7 @@ use std::collections::VecDeque;
 use nalgebra::{Isometry3, Vector2};
 
 use crate::camera::Camera;
+use crate::features::grid::Grid;
 use crate::features::orb::{hamming, Descriptor};
 use crate::frame::Frame;
 
@@ -130,10 +131,17 @@ impl MovingRegion {
     }
 }
 
+/// What later frames need of a frame: its keypoints' positions and depths
+/// and, for the search, its grid and its keypoints in the grid's cell order
+/// (not the whole frame: its descriptors are in `by_cell`, and the rest is
+/// not used).
 struct PastFrame {
     timestamp: f64,
-    frame: Frame,
-    /// The frame's keypoints in its grid's cell order, for the search.
+    /// Undistorted position and depth per keypoint (the frame's `un` and
+    /// `depth`).
+    un: Vec<(f64, f64)>,
+    depth_at: Vec<Option<f64>>,
+    grid: Grid,
     by_cell: ByCell,
     pose_cw: Isometry3<f64>,
     depth: NearestDepth,
@@ -357,7 +365,9 @@ impl MotionCheck {
         self.history.push_back(PastFrame {
             timestamp,
             by_cell: ByCell::new(frame),
-            frame: frame.clone(),
+            un: frame.un.clone(),
+            depth_at: frame.depth.clone(),
+            grid: frame.grid.clone(),
             pose_cw: *pose_cw,
             depth,
             turn_rate,
@@ -441,7 +451,7 @@ fn keypoint_evidence(
         let desc = &frame.descs[k];
         let (mut best, mut second, mut best_i) = (u32::MAX, u32::MAX, None);
         let cells = &past.by_cell;
-        for run in past.frame.grid.rows_near(&cells.starts, pu, pv, radius) {
+        for run in past.grid.rows_near(&cells.starts, pu, pv, radius) {
             let candidates = cells.levels[run.clone()]
                 .iter()
                 .zip(&cells.descs[run.clone()]);
@@ -463,12 +473,12 @@ fn keypoint_evidence(
         if best > p.max_hamming || (second != u32::MAX && best as f64 > p.ratio * second as f64) {
             continue;
         }
-        let Some(zj) = past.frame.depth[j] else {
+        let Some(zj) = past.depth_at[j] else {
             continue;
         };
         matched_at.push(Vector2::new(u, v));
         found[k] = true;
-        let (ju, jv) = past.frame.un[j];
+        let (ju, jv) = past.un[j];
         let shift = Vector2::new(ju - pu, jv - pv);
         let world_now = now_wc * nalgebra::Point3::from(here);
         let world_then = past_wc * nalgebra::Point3::from(camera.unproject(ju, jv, zj));

@@ -12,7 +12,7 @@ const MAX_FN_LINES: usize = 120;
 
 /// Files over the limit today: (path under services/, lines at most).
 const LARGE_FILES: [(&str, usize); 2] = [
-    ("slam-core/src/system.rs", 1072),
+    ("slam-core/src/system.rs", 950),
     ("propagator/src/propagate.rs", 1110),
 ];
 
@@ -23,7 +23,7 @@ const LONG_FUNCTIONS: [(&str, &str, usize); 7] = [
     ("propagator/src/propagate.rs", "warp_mask", 171),
     ("supervisor/src/mask_eval.rs", "evaluate", 169),
     ("propagator/src/newcomers.rs", "find", 160),
-    ("slam-core/src/system.rs", "track_with", 135),
+    ("slam-core/src/system.rs", "track_with", 126),
     ("scenes/src/synth.rs", "render", 130),
 ];
 

@@ -6,13 +6,14 @@ the builds taking turns which goes first, and prints per figure (extraction alon
 track, total per frame: p50 ms; ATE) the median and spread of each build's runs and the ratio
 of the medians. Usage:
 
-    tools/compare-slam.py OLD_RELEASE_DIR [--runs 3] [--threads 1,2]
+    tools/compare-slam.py OLD_RELEASE_DIR [--runs 3] [--threads 1,2] [--new-args "--flow-frames 3"]
 
 OLD_RELEASE_DIR is another checkout's target/release (its slam-bench).
 """
 
 import argparse
 import re
+import shlex
 import statistics
 import subprocess
 import sys
@@ -29,11 +30,11 @@ FIGURES = [
 ALONE = re.compile(r"(1 thread|\d+ threads) p50 ([0-9.]+) ms")
 
 
-def bench(release: Path, dataset: str, threads: int, out: Path) -> dict:
+def bench(release: Path, dataset: str, threads: int, out: Path, extra: list) -> dict:
     program = release / "slam-bench"
     if not program.is_file():
         sys.exit(f"{program}: no slam-bench there (build that checkout: cargo build --release --workspace)")
-    cmd = [str(program), dataset, "--threads", str(threads), "--out", str(out)]
+    cmd = [str(program), dataset, "--threads", str(threads), "--out", str(out)] + extra
     done = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     if done.returncode != 0:
         sys.exit(f"{program} failed ({done.returncode}):\n{done.stderr[-2000:]}")
@@ -61,6 +62,7 @@ def main() -> None:
     p.add_argument("--dataset", default=str(here.parent / "shared/data/tum/rgbd_dataset_freiburg1_rpy_first300"))
     p.add_argument("--runs", type=int, default=3, help="runs per thread count and build")
     p.add_argument("--threads", default="1,2", help="extraction thread counts, comma-separated")
+    p.add_argument("--new-args", default="", help="more slam-bench flags for this build only (e.g. \"--flow-frames 3\")")
     a = p.parse_args()
     try:
         thread_counts = [int(t) for t in a.threads.split(",")]
@@ -70,6 +72,7 @@ def main() -> None:
     if a.runs < 1:
         sys.exit(f"--runs {a.runs}: at least one run")
     builds = {"old": a.old.resolve(), "new": a.new.resolve()}
+    extra = {"old": [], "new": shlex.split(a.new_args)}
     results = {(name, t): [] for name in builds for t in thread_counts}
     with tempfile.TemporaryDirectory(prefix="dynslam-compare-slam-") as tmp:
         for i in range(a.runs):
@@ -77,8 +80,10 @@ def main() -> None:
                 order = ["old", "new"] if i % 2 == 0 else ["new", "old"]
                 for name in order:
                     print(f"run {i + 1}/{a.runs}, {t} thread(s): {name} ({builds[name]})", file=sys.stderr, flush=True)
-                    results[(name, t)].append(bench(builds[name], a.dataset, t, Path(tmp) / f"{name}.txt"))
+                    results[(name, t)].append(bench(builds[name], a.dataset, t, Path(tmp) / f"{name}.txt", extra[name]))
     print(f"SLAM core, {a.runs} runs per build and thread count, alternated; median [min-max]")
+    if a.new_args:
+        print(f"new build with: {a.new_args}")
     print(f"{'threads':>7} {'figure':>32} {'old':>22} {'new':>22} {'new/old':>8}")
     for t in thread_counts:
         labels = sorted({k for r in results[("new", t)] for k in r}, key=lambda k: (not k.startswith("extraction"), k))

@@ -12,9 +12,12 @@
 
 #![deny(missing_docs)]
 
-pub mod lk;
 pub mod newcomers;
 pub mod propagate;
-pub mod pyramid;
 pub mod sam2;
 pub mod synthetic;
+
+/// Pyramidal Lucas-Kanade (in the SLAM core, whose tracking uses it too).
+pub use slam_core::flow::lk;
+/// Grey images and pyramids (in the SLAM core, whose tracking uses them too).
+pub use slam_core::flow::pyramid;

@@ -8,6 +8,7 @@ use crate::camera::{Bounds, Camera};
 use crate::features::grid::Grid;
 use crate::features::mask::DynamicMask;
 use crate::features::orb::{Descriptor, GrayU8, KeyPoint, OrbExtractor};
+use crate::flow::pyramid::{Gray, Pyramid};
 use crate::map::KeyFrameObservation;
 use crate::params::SlamParams;
 use crate::tracking::small_image::SmallImage;
@@ -67,6 +68,44 @@ pub struct Frame {
     /// (`tracking::small_image`). Shared: tracking keeps the last one, a
     /// frame without some keypoints keeps its image.
     pub small: Option<Arc<SmallImage>>,
+    /// The grey image's pyramid, where frames between keyframes are tracked
+    /// by optical flow (`SlamParams::flow_frames`): the next frame follows
+    /// this one's points in it.
+    pub pyramid: Option<Arc<Pyramid>>,
+}
+
+/// Keypoints found in an image (raw pixels), their descriptors, and how
+/// many the dynamic mask rejected.
+pub struct Detected {
+    pub kps: Vec<KeyPoint>,
+    pub descs: Vec<Descriptor>,
+    pub masked: usize,
+}
+
+/// What turns keypoints into a frame: the camera, the parameters, the
+/// undistorted image extent and the pyramid levels' scales.
+pub struct FrameContext<'a> {
+    pub camera: &'a Camera,
+    pub params: &'a SlamParams,
+    pub bounds: Bounds,
+    pub level_scales: Arc<[f64]>,
+}
+
+/// Pyramid levels optical flow tracks over (level 2 is a quarter of the
+/// image: the reach is about 3 x 4 x the window from the guess).
+const FLOW_LEVELS: usize = 3;
+
+/// The pyramid optical flow reads, of the grey image.
+fn flow_pyramid(gray: &GrayU8) -> Pyramid {
+    let data = gray.data.iter().map(|&v| v as f32).collect();
+    Pyramid::new(
+        Gray {
+            width: gray.width,
+            height: gray.height,
+            data,
+        },
+        FLOW_LEVELS,
+    )
 }
 
 impl Frame {
@@ -82,13 +121,46 @@ impl Frame {
         bounds: Bounds,
         correct: impl FnOnce(&[KeyPoint], &mut [(f64, f64)], &mut [Option<f64>]),
     ) -> Self {
+        let context = FrameContext {
+            camera,
+            params,
+            bounds,
+            level_scales: extractor.level_scales(),
+        };
+        Self::with_keypoints(
+            input,
+            |gray, _, keep| {
+                let (kps, descs, masked) = extractor.extract(gray, keep);
+                Detected { kps, descs, masked }
+            },
+            &context,
+            correct,
+        )
+    }
+
+    /// A frame of the keypoints `detect` finds in `input`'s grey image (and,
+    /// with flow tracking on, its pyramid) where the mask keeps them: ORB
+    /// extraction, or the last frame's points followed by optical flow.
+    pub fn with_keypoints(
+        input: &RgbdInput,
+        detect: impl FnOnce(&GrayU8, Option<&Pyramid>, &(dyn Fn(f32, f32) -> bool + Sync)) -> Detected,
+        context: &FrameContext,
+        correct: impl FnOnce(&[KeyPoint], &mut [(f64, f64)], &mut [Option<f64>]),
+    ) -> Self {
+        let FrameContext {
+            camera,
+            params,
+            bounds,
+            ..
+        } = *context;
         let (width, height) = (input.width, input.height);
         let gray = GrayU8::from_rgb(input.rgb, width, height);
+        let pyramid = (params.flow_frames > 0).then(|| Arc::new(flow_pyramid(&gray)));
         let mask = input
             .mask
             .map(|m| DynamicMask::new(m, width, height, params.mask_dilation_px));
         let keep = |x: f32, y: f32| mask.as_ref().is_none_or(|m| m.keeps(x, y));
-        let (kps, descs, masked) = extractor.extract(&gray, &keep);
+        let Detected { kps, descs, masked } = detect(&gray, pyramid.as_deref(), &keep);
         let mut un: Vec<(f64, f64)> = kps
             .iter()
             .map(|k| camera.undistort(k.x as f64, k.y as f64))
@@ -132,10 +204,11 @@ impl Frame {
             depth,
             colours,
             bounds,
-            level_scales: extractor.level_scales(),
+            level_scales: context.level_scales.clone(),
             masked,
             width,
             height,
+            pyramid,
         }
     }
 
@@ -162,6 +235,7 @@ impl Frame {
             width: self.width,
             height: self.height,
             small: self.small.clone(),
+            pyramid: self.pyramid.clone(),
         };
         (frame, kept)
     }

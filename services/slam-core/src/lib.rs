@@ -6,6 +6,8 @@
 //!
 //! Module map (ORB-SLAM2's, one concern each):
 //! - [`features`]: ORB extraction, the keypoint grid, dynamic-mask filtering.
+//! - [`flow`]: grey pyramids and pyramidal Lucas-Kanade (frames between
+//!   keyframes tracked without extraction; the propagator's point tracking).
 //! - [`frame`]: one frame's features, undistorted, with depth.
 //! - [`map`]: keyframes and points in arenas with stable ids, covisibility
 //!   graph, spanning tree; the mutation API and its invariants.
@@ -29,6 +31,7 @@
 pub mod camera;
 pub mod eval;
 pub mod features;
+pub mod flow;
 pub mod frame;
 pub mod geometry;
 pub mod initialization;

@@ -106,6 +106,15 @@ pub struct SlamParams {
     /// differs from the motion model's by more than a degree (a hand-held
     /// camera reversing its turn).
     pub turn_from_images: bool,
+    /// RGB-D: up to this many frames in a row between full extractions are
+    /// tracked by following the last frame's inliers with pyramidal
+    /// Lucas-Kanade and optimising the pose against their map points, with
+    /// no ORB extraction and no search by projection
+    /// ([`crate::tracking::flow`]; NGD-SLAM's hybrid tracking). A frame
+    /// the keyframe rule may pick, one after a loss, one whose followed
+    /// points fall short of the reference keyframe's, is extracted in full.
+    /// 0 (the default): every frame is extracted.
+    pub flow_frames: u32,
 }
 
 impl SlamParams {
@@ -149,6 +158,7 @@ impl Default for SlamParams {
             global_bundle_adjustment: true,
             motion_check: true,
             turn_from_images: true,
+            flow_frames: 0,
         }
     }
 }

@@ -14,7 +14,7 @@ use nalgebra::Isometry3;
 use crate::camera::{Bounds, Camera};
 use crate::features::mask::DynamicMask;
 use crate::features::orb::OrbExtractor;
-use crate::frame::{Frame, RgbdInput};
+use crate::frame::{Detected, Frame, FrameContext, RgbdInput};
 use crate::initialization::{
     initialise_rgbd, points_to_start, start_rgbd_at, MonocularInitializer,
 };
@@ -29,6 +29,8 @@ use crate::params::SlamParams;
 use crate::place_recognition::Vocabulary;
 use crate::tracking::motion_check::{MotionCheck, MotionCheckParams, MovingRegion};
 use crate::tracking::{Tracked, Tracking, TrackingState};
+
+mod per_frame;
 
 /// Undistorted keypoint pixels and depths before the rolling-shutter
 /// correction.
@@ -51,6 +53,9 @@ pub struct FrameCounts {
     /// finished during this frame (microseconds).
     pub extract_us: u32,
     pub mapping_us: u32,
+    /// The frame was tracked by following the last frame's points with
+    /// optical flow, not by ORB extraction (`SlamParams::flow_frames`).
+    pub tracked_by_flow: bool,
 }
 
 /// When a frame that the keyframe rule picks becomes a keyframe.
@@ -199,6 +204,9 @@ pub struct System {
     motion: MotionCheck,
     /// The last frame's moving regions (undistorted pixel boxes).
     moving_regions: Vec<MovingRegion>,
+    /// The last frame's result asked for a keyframe next
+    /// (`next_needs_keyframe`): the next frame is extracted in full.
+    keyframe_hinted: bool,
 }
 
 /// What the keyframe rule made of a tracked frame.
@@ -268,6 +276,7 @@ impl System {
             weak_before: false,
             motion: MotionCheck::new(MotionCheckParams::default()),
             moving_regions: Vec::new(),
+            keyframe_hinted: false,
         }
     }
 
@@ -409,8 +418,9 @@ impl System {
             // The resumed motion is stale: find the frame in the map instead.
             self.tracking.start_lost();
         }
-        let (mut frame, raw) = self.features(input);
-        let extract_ms = to_ms(t0);
+        let follow = !self.keyframe_hinted && self.tracking.may_follow(input.timestamp);
+        let (mut frame, mut raw, mut followed) = self.features(input, follow);
+        let mut extract_ms = to_ms(t0);
         let t1 = std::time::Instant::now();
         // The map comes back from local mapping (a wait, if it is not done,
         // counts as tracking time).
@@ -419,55 +429,47 @@ impl System {
         let mut tracked = if initialising {
             self.initialise(&frame, input.timestamp)
         } else {
-            self.tracking.track(&mut self.map, &frame, input.timestamp)
+            self.track_in_map(
+                input,
+                (&mut frame, &mut raw),
+                &mut followed,
+                &mut extract_ms,
+            )
         };
+        let by_flow = followed.is_some();
         let restarted =
             !initialising && self.restart_young_map(&frame, &mut tracked, input.timestamp);
-        // A relocalised frame too: in a fast turn it needs the correction
-        // as much as any (it has the motion history unless the frame before
-        // was lost). slam-bench on every 3rd shared frame: ATE 0.0203 ->
-        // 0.0142 m; every frame and every 2nd unchanged.
-        if let (TrackingState::Ok | TrackingState::Relocalised, Some(raw)) = (tracked.state, &raw) {
-            if let Some(refined) = self.tracking.refine_for_shutter(
-                &self.map,
-                &mut frame,
-                raw,
-                &tracked.pose_cw,
-                &tracked.matched,
-                input.timestamp,
-            ) {
-                tracked.pose_cw = refined;
-            }
-        }
-        let checked = tracked.state.is_tracked() && !initialising && !restarted;
+        self.refine_for_shutter(&mut frame, raw.as_ref(), &mut tracked, input.timestamp);
+        // A frame tracked by flow has only the points of the last frame,
+        // which was checked.
+        let checked = tracked.state.is_tracked() && !initialising && !restarted && !by_flow;
         let (moving, motion_ms) = self.drop_moving(&mut frame, &mut tracked, (input, checked));
         let weakened = self.weakened(&tracked);
-        let timing = if weakened {
-            KeyframeTiming::Now
-        } else {
-            timing
+        let timing = match (by_flow, weakened) {
+            // Its keypoints are the last frame's: should the rule pick it,
+            // the next frame (extracted in full) becomes the keyframe.
+            (true, _) => KeyframeTiming::NotThisFrame,
+            (false, true) => KeyframeTiming::Now,
+            (false, false) => timing,
         };
         // A successful initialisation (or restart) made the first keyframe.
         let started = (initialising || restarted) && tracked.state == TrackingState::Ok;
         let decision = self.decide_keyframe(&tracked, &frame, input.timestamp, started, timing);
         let keyframe_inserted = decision == Decision::Inserted;
+        if tracked.state.is_tracked() {
+            self.tracking
+                .remember_flow(&frame, &tracked.matched, by_flow);
+        }
         if matches!(decision, Decision::Inserted | Decision::Pending) {
             // A new reference: weak frames count against it afresh.
             self.weak_before = false;
         }
-        if tracked.state.is_tracked() {
-            // Relative to the newest keyframe, so that the trajectory
-            // follows the keyframes when a loop correction moves them.
-            if let Some(reference) = self.map.keyframes.len().checked_sub(1) {
-                let relative = tracked.pose_cw * self.map.keyframes[reference].pose_cw.inverse();
-                self.tracked_frames
-                    .push((input.timestamp, reference, relative));
-            }
-        }
+        self.record_pose(&tracked, input.timestamp);
         let mut counts = FrameCounts {
             features: frame.kps.len() as u32,
             features_masked: (frame.masked - moving) as u32,
             features_moving: moving as u32,
+            tracked_by_flow: by_flow,
             extract_us: (extract_ms * 1e3) as u32,
             inliers: tracked.inliers as u32,
             map_points: self.map.live_point_count() as u32,
@@ -512,6 +514,7 @@ impl System {
                 // (`NotThisFrame`): the hint asks for the next.
                 decision == Decision::Wanted || self.tracking.next_needs_keyframe(tracked.inliers)
             };
+        self.keyframe_hinted = next_needs_keyframe;
         let pose_for_output = self.tracking.last_pose().unwrap_or(tracked.pose_cw);
         FrameResult {
             pose_wc: pose_for_output.inverse(),
@@ -525,131 +528,6 @@ impl System {
             track_ms: to_ms(t1),
             motion_ms,
         }
-    }
-
-    /// The RGB-D motion check (when `params.motion_check`): the keypoints of
-    /// `frame` in regions that move unlike the camera (at its pose just
-    /// estimated) are dropped from the frame and its matches, so that
-    /// neither the keyframe decision nor mapping sees them (the pose came
-    /// from robust optimisation: such a minority is outvoted); the frame is
-    /// kept whole for later frames' checks. Returns the keypoints dropped and
-    /// the ms it took (0, 0 unless `checked`: a tracked frame).
-    fn drop_moving(
-        &mut self,
-        frame: &mut Frame,
-        tracked: &mut Tracked,
-        (input, checked): (&RgbdInput, bool),
-    ) -> (usize, f64) {
-        self.moving_regions.clear();
-        if !self.params.motion_check || self.params.is_monocular() || !checked {
-            return (0, 0.0);
-        }
-        let started = std::time::Instant::now();
-        let regions = self.motion.observe(
-            frame,
-            input.depth,
-            (&tracked.pose_cw, &tracked.matched),
-            input.timestamp,
-            &self.camera,
-        );
-        if regions.is_empty() {
-            return (0, to_ms(started));
-        }
-        let (kept, index) = frame.without_index(|k| {
-            let (u, v) = frame.un[k];
-            regions.iter().any(|r| r.contains(u, v))
-        });
-        let dropped = frame.kps.len() - kept.kps.len();
-        tracked.matched = index.iter().map(|&k| tracked.matched[k]).collect();
-        tracked.inliers = tracked
-            .inliers
-            .min(tracked.matched.iter().flatten().count());
-        *frame = kept;
-        self.moving_regions = regions;
-        (dropped, to_ms(started))
-    }
-
-    /// The regions the motion check found moving in the last frame
-    /// (undistorted pixel boxes; empty when off, monocular or none).
-    pub fn moving_regions(&self) -> &[MovingRegion] {
-        &self.moving_regions
-    }
-
-    /// The frame's features; with a rolling shutter, keypoints moved to the
-    /// middle row's instant and their raw positions kept for the second
-    /// pass.
-    fn features(&mut self, input: &RgbdInput) -> (Frame, Option<RawKeypoints>) {
-        let height = input.height;
-        let bounds = self.bounds(input.width, height);
-        let motion = self.tracking.shutter_motion(None);
-        let mut raw = None;
-        let tracking = &self.tracking;
-        let frame = Frame::extract(
-            input,
-            &self.extractor,
-            &self.camera,
-            &self.params,
-            bounds,
-            |kps, un, depth| {
-                if let Some(motion) = motion {
-                    raw = Some((un.to_vec(), depth.to_vec()));
-                    tracking.undo_rolling_shutter(kps, un, depth, height, motion);
-                }
-            },
-        );
-        (frame, raw)
-    }
-
-    /// RGB-D: a map of this run that is still young ([`YOUNG_MAP_KEYFRAMES`])
-    /// and has been lost for [`RESTART_AFTER_LOST_S`] is given up: its
-    /// keyframes are culled (the frames tracked in it keep their poses) and
-    /// `frame` starts the map again at the last tracked pose. True when it
-    /// did (`tracked` is then the new start's).
-    fn restart_young_map(&mut self, frame: &Frame, tracked: &mut Tracked, timestamp: f64) -> bool {
-        if tracked.state != TrackingState::Lost {
-            self.lost_in_a_row = (0, 0.0);
-            return false;
-        }
-        let (n, since) = &mut self.lost_in_a_row;
-        if *n == 0 {
-            *since = timestamp;
-        }
-        *n += 1;
-        let long_enough =
-            *n >= RESTART_AFTER_LOST_FRAMES && timestamp - *since >= RESTART_AFTER_LOST_S;
-        let young = self.map.live_keyframes().count() <= YOUNG_MAP_KEYFRAMES;
-        let allowed = self.map_started_here && !self.localize_only && !self.params.is_monocular();
-        let Some(last) = self.tracking.last_pose() else {
-            return false;
-        };
-        if !long_enough || !young || !allowed {
-            return false;
-        }
-        let Some(with_depth) = points_to_start(frame) else {
-            return false;
-        };
-        // A keyframe still waiting for its masks belongs to the old map.
-        self.pending_keyframe = None;
-        self.mapped_keyframe = None;
-        let live: Vec<usize> = self.map.live_keyframes().map(|(k, _)| k).collect();
-        for k in live {
-            self.map.cull_keyframe(k);
-        }
-        self.tracking.reset();
-        start_rgbd_at(&mut self.tracking, &mut self.map, frame, with_depth, &last);
-        self.lost_in_a_row = (0, 0.0);
-        self.map_restarts += 1;
-        tracing::warn!(
-            "tracking lost for {RESTART_AFTER_LOST_S} s in a map of at most \
-             {YOUNG_MAP_KEYFRAMES} keyframes: map started again at the last tracked pose"
-        );
-        *tracked = Tracked {
-            state: TrackingState::Ok,
-            pose_cw: last,
-            inliers: frame.kps.len(),
-            matched: Vec::new(),
-        };
-        true
     }
 
     /// The map's start (not in localization mode: it adds nothing, so an

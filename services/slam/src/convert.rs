@@ -28,6 +28,7 @@ pub fn params(config: &PipelineConfig) -> SlamParams {
     }
     params.loop_closing = config.services.slam.loop_closing;
     params.motion_check = config.services.slam.motion_check;
+    params.flow_frames = config.services.slam.flow_frames;
     params
 }
 

@@ -8,6 +8,7 @@
 //! keypoints no map point explains. A rolling-shutter camera's keypoints
 //! are moved to the middle row's instant ([`rolling_shutter`]).
 
+mod flow;
 mod local_map;
 pub mod motion_check;
 mod relocalisation;
@@ -136,6 +137,9 @@ pub struct Tracking {
     /// The shortest time between two tracked frames so far: the camera's
     /// frame period, where none was left out.
     shortest_interval: Option<f64>,
+    /// The last tracked frame's inliers and pyramid, where frames between
+    /// keyframes are tracked by optical flow ([`flow`]).
+    flow: Option<flow::FlowSource>,
 }
 
 impl Tracking {
@@ -157,6 +161,7 @@ impl Tracking {
             relocalised_at: None,
             last_image: None,
             shortest_interval: None,
+            flow: None,
         }
     }
 
@@ -427,6 +432,7 @@ impl Tracking {
     pub(crate) fn mark_lost(&mut self) {
         self.lost = true;
         self.last_image = None;
+        self.flow = None;
         self.resumed = false;
         self.velocity = None;
         self.recent.clear();

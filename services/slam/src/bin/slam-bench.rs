@@ -120,6 +120,11 @@ struct Args {
     /// images give where the two disagree (to compare).
     #[arg(long)]
     no_image_turn: bool,
+    /// Track up to N frames in a row between full ORB extractions by
+    /// following the last frame's points with optical flow (0: every frame
+    /// extracted, the default); prints how many frames were.
+    #[arg(long, default_value_t = 0)]
+    flow_frames: u32,
     /// With --loop-closing: no global bundle adjustment after a loop
     /// correction (the essential graph alone).
     #[arg(long)]
@@ -272,6 +277,7 @@ fn main() -> Result<()> {
     params.loop_closing = args.loop_closing;
     params.motion_check = !args.no_motion_check;
     params.turn_from_images = !args.no_image_turn;
+    params.flow_frames = args.flow_frames;
     params.global_bundle_adjustment = !args.no_global_ba;
     if let Some(n) = args.features {
         anyhow::ensure!(n >= 50, "--features {n}: at least 50 are needed to track");
@@ -314,7 +320,7 @@ fn main() -> Result<()> {
     };
     let mut tracked = 0;
     let mut relocalised = 0;
-    let (mut moving, mut features) = (0u64, 0u64);
+    let (mut moving, mut features, mut by_flow) = (0u64, 0u64, 0usize);
     let mut progress = Progress::new("slam", frames.len() as u64);
     for (i, f) in frames.iter().enumerate() {
         let rgb = image::open(&f.rgb)
@@ -356,6 +362,7 @@ fn main() -> Result<()> {
         }
         inserted_per_pass[i / pass_len] += r.keyframe_inserted as usize;
         moving += r.counts.features_moving as u64;
+        by_flow += r.counts.tracked_by_flow as usize;
         features += (r.counts.features + r.counts.features_moving) as u64;
         extract.push(r.extract_ms);
         track.push(r.track_ms);
@@ -440,6 +447,12 @@ fn main() -> Result<()> {
         "relocalisations (by bag of words): {relocalised}; young maps lost and started again: {}",
         system.map_restarts()
     );
+    if params.flow_frames > 0 {
+        println!(
+            "flow tracking: {by_flow} of {} frames tracked without extraction",
+            frames.len()
+        );
+    }
     if params.motion_check {
         println!(
             "motion check: {moving} of {features} features dropped ({:.2} %)",

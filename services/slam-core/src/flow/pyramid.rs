@@ -54,13 +54,31 @@ impl Gray {
             let y = y.clamp(0, self.height as isize - 1) as usize;
             self.at(x, y)
         };
+        // Weights of the 3x3 kernel (row weight times column weight).
+        const K: [[f32; 3]; 3] = [[1.0, 2.0, 1.0], [2.0, 4.0, 2.0], [1.0, 2.0, 1.0]];
         for y in 0..h {
+            let cy = (2 * y) as isize;
             for x in 0..w {
-                let (cx, cy) = ((2 * x) as isize, (2 * y) as isize);
+                let cx = (2 * x) as isize;
+                let inside = cx >= 1
+                    && cy >= 1
+                    && cx + 1 < self.width as isize
+                    && cy + 1 < self.height as isize;
                 let mut acc = 0.0;
-                for (dy, wy) in [(-1, 1.0), (0, 2.0), (1, 1.0)] {
-                    for (dx, wx) in [(-1, 1.0), (0, 2.0), (1, 1.0)] {
-                        acc += wx * wy * px(cx + dx, cy + dy);
+                if inside {
+                    // The same sums in the same order, without the clamps.
+                    let (cx, cy) = (cx as usize, cy as usize);
+                    for (dy, k) in K.iter().enumerate() {
+                        let row = &self.data[(cy + dy - 1) * self.width + cx - 1..][..3];
+                        for (w, v) in k.iter().zip(row) {
+                            acc += w * v;
+                        }
+                    }
+                } else {
+                    for (dy, wy) in [(-1, 1.0), (0, 2.0), (1, 1.0)] {
+                        for (dx, wx) in [(-1, 1.0), (0, 2.0), (1, 1.0)] {
+                            acc += wx * wy * px(cx + dx, cy + dy);
+                        }
                     }
                 }
                 data.push(acc / 16.0);
@@ -167,6 +185,36 @@ fn best_shift(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Halving reads the interior without clamps: the same values, to the
+    /// bit, as the 3x3 kernel over clamped pixels everywhere.
+    #[test]
+    fn half_is_the_clamped_kernel() {
+        for (w, h) in [(37, 23), (40, 30)] {
+            let data: Vec<f32> = (0..w * h)
+                .map(|i| ((i * 7919) % 251) as f32 * 0.37 + (i % 13) as f32)
+                .collect();
+            let g = Gray {
+                width: w,
+                height: h,
+                data,
+            };
+            let half = g.half();
+            for y in 0..half.height {
+                for x in 0..half.width {
+                    let mut acc = 0.0f32;
+                    for (dy, wy) in [(-1isize, 1.0f32), (0, 2.0), (1, 1.0)] {
+                        for (dx, wx) in [(-1isize, 1.0f32), (0, 2.0), (1, 1.0)] {
+                            let px = (2 * x as isize + dx).clamp(0, w as isize - 1) as usize;
+                            let py = (2 * y as isize + dy).clamp(0, h as isize - 1) as usize;
+                            acc += wx * wy * g.at(px, py);
+                        }
+                    }
+                    assert_eq!(half.at(x, y), acc / 16.0, "{w}x{h} at ({x}, {y})");
+                }
+            }
+        }
+    }
 
     #[test]
     fn half_of_a_constant_is_the_constant_and_sizes_halve() {

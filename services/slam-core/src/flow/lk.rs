@@ -2,7 +2,7 @@
 //! of the Lucas Kanade feature tracker"): per level, iterative Gauss-Newton on
 //! a square window, the estimate carried from coarse to fine.
 
-use crate::pyramid::{Gray, Pyramid};
+use super::pyramid::{Gray, Pyramid};
 
 /// Tracking parameters.
 #[derive(Debug, Clone, Copy)]
@@ -51,6 +51,22 @@ pub fn track(
         .collect()
 }
 
+/// [`track`] with a displacement guess per point (e.g. where the motion
+/// model projects each point's map point).
+pub fn track_each(
+    prev: &Pyramid,
+    next: &Pyramid,
+    points: &[(f32, f32)],
+    guesses: &[(f32, f32)],
+    p: LkParams,
+) -> Vec<Option<(f32, f32)>> {
+    points
+        .iter()
+        .zip(guesses)
+        .map(|(&pt, &guess)| track_one(prev, next, pt, guess, p))
+        .collect()
+}
+
 fn track_one(
     prev: &Pyramid,
     next: &Pyramid,
@@ -66,6 +82,7 @@ fn track_one(
     let (mut gx, mut gy) = (guess.0 / top, guess.1 / top);
     let mut grads = Vec::with_capacity(n as usize);
     let mut patch = Vec::with_capacity((2 * p.radius + 3).pow(2));
+    let mut moved = Vec::with_capacity(n as usize);
     let finest = p.finest_level.min(levels - 1);
     for level in (finest..levels).rev() {
         let scale = (1u32 << level) as f32;
@@ -77,12 +94,7 @@ fn track_one(
         // The window and a one-pixel frame around it, for the gradients.
         let template = Window::at(ux, uy);
         let side = 2 * r + 3;
-        patch.clear();
-        for dy in -r - 1..=r + 1 {
-            for dx in -r - 1..=r + 1 {
-                patch.push(template.value(a, dx, dy));
-            }
-        }
+        template.fill(a, r + 1, &mut patch);
         let at = |dx: isize, dy: isize| patch[((dy + r + 1) * side + dx + r + 1) as usize];
         let (mut gxx, mut gxy, mut gyy) = (0.0f32, 0.0f32, 0.0f32);
         grads.clear();
@@ -104,17 +116,12 @@ fn track_one(
         }
         let (mut vx, mut vy) = (0.0f32, 0.0f32);
         for _ in 0..p.iterations {
-            let moved = Window::at(ux + gx + vx, uy + gy + vy);
+            Window::at(ux + gx + vx, uy + gy + vy).fill(b, r, &mut moved);
             let (mut bx, mut by) = (0.0f32, 0.0f32);
-            let mut k = 0;
-            for dy in -r..=r {
-                for dx in -r..=r {
-                    let (ix, iy, ia) = grads[k];
-                    k += 1;
-                    let diff = ia - moved.value(b, dx, dy);
-                    bx += diff * ix;
-                    by += diff * iy;
-                }
+            for (&(ix, iy, ia), &ib) in grads.iter().zip(&moved) {
+                let diff = ia - ib;
+                bx += diff * ix;
+                by += diff * iy;
             }
             let (sx, sy) = ((gyy * bx - gxy * by) / det, (gxx * by - gxy * bx) / det);
             vx += sx;
@@ -167,6 +174,37 @@ impl Window {
         }
     }
 
+    /// The square of offsets -r..=r around the point, row by row, into
+    /// `out`: straight from the image's rows where it lies inside (the
+    /// same arithmetic as [`Window::value`], without its clamps per
+    /// pixel), else pixel by pixel.
+    fn fill(&self, img: &Gray, r: isize, out: &mut Vec<f32>) {
+        out.clear();
+        let (w, h) = (img.width as isize, img.height as isize);
+        let inside =
+            self.x0 - r >= 0 && self.y0 - r >= 0 && self.x0 + r + 1 < w && self.y0 + r + 1 < h;
+        if !inside {
+            for dy in -r..=r {
+                for dx in -r..=r {
+                    out.push(self.value(img, dx, dy));
+                }
+            }
+            return;
+        }
+        let side = (2 * r + 1) as usize;
+        let (wx, wy) = (self.wx, self.wy);
+        for dy in -r..=r {
+            let start = ((self.y0 + dy) * w + self.x0 - r) as usize;
+            let upper = &img.data[start..start + side + 1];
+            let lower = &img.data[start + img.width..start + img.width + side + 1];
+            out.extend(upper.windows(2).zip(lower.windows(2)).map(|(a, b)| {
+                let top = a[0] * (1.0 - wx) + a[1] * wx;
+                let bottom = b[0] * (1.0 - wx) + b[1] * wx;
+                top * (1.0 - wy) + bottom * wy
+            }));
+        }
+    }
+
     /// The image at offset (dx, dy) from the point; positions outside it
     /// read its border (as `Gray::sample`).
     #[inline]
@@ -184,7 +222,7 @@ impl Window {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::pyramid::Gray;
+    use crate::flow::pyramid::Gray;
 
     /// A smooth textured image and the same image shifted by (sx, sy).
     fn pair(sx: f32, sy: f32) -> (Pyramid, Pyramid) {
@@ -234,6 +272,32 @@ mod tests {
                     (x - p.0 - sx).abs() < 0.05 && (y - p.1 - sy).abs() < 0.05,
                     "{p:?} -> {x},{y} for shift {sx},{sy}"
                 );
+            }
+        }
+    }
+
+    /// A window read row by row inside the image gives what the clamped
+    /// pixel-by-pixel read gives, to the bit; near the border it falls back.
+    #[test]
+    fn a_window_inside_reads_as_pixel_by_pixel() {
+        let (a, _) = pair(0.0, 0.0);
+        let img = &a.levels[0];
+        let mut out = Vec::new();
+        for (x, y) in [
+            (30.3, 40.7),
+            (5.0, 5.5),
+            (0.2, 88.9),
+            (118.6, 1.0),
+            (60.999, 44.001),
+        ] {
+            let w = Window::at(x, y);
+            for r in [1, 4, 7] {
+                w.fill(img, r, &mut out);
+                let expected: Vec<f32> = (-r..=r)
+                    .flat_map(|dy| (-r..=r).map(move |dx| (dx, dy)))
+                    .map(|(dx, dy)| w.value(img, dx, dy))
+                    .collect();
+                assert_eq!(out, expected, "({x}, {y}) r {r}");
             }
         }
     }

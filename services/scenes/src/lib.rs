@@ -8,12 +8,15 @@
 //!   occlusion and writes their instance ids into a label image.
 //! - [`room`]: the embedded default input, a rendered textured room with a
 //!   moving camera and exact depth and poses, people walked through it.
+//! - [`sensor`]: what a real camera does to a render: depth noise, holes
+//!   and quantisation (Kinect, RealSense), motion blur.
 //! - [`truth`]: scoring predicted masks against those ground-truth masks.
 //! - [`synth`]: `dynslam synth`, a TUM folder in, a dynamic TUM folder with
 //!   per-frame ground-truth masks and the objects' paths out.
 
 pub mod composite;
 pub mod room;
+pub mod sensor;
 pub mod sprites;
 pub mod synth;
 pub mod truth;

@@ -20,6 +20,7 @@ use slam_core::io::trajectory::Trajectory;
 use slam_core::Camera;
 
 use crate::composite::Pinhole;
+use crate::sensor::SensorModel;
 use crate::synth::{for_each_frame, synthesize, SynthError, SynthSummary};
 use crate::walkers::WalkOptions;
 
@@ -32,6 +33,8 @@ pub struct RoomOptions {
     pub height: usize,
     /// How the camera moves.
     pub path: CameraPath,
+    /// Depth noise and holes, motion blur (default: none, exact frames).
+    pub sensor: SensorModel,
 }
 
 /// The camera's path through the room.
@@ -61,6 +64,7 @@ impl Default for RoomOptions {
             width: 640,
             height: 480,
             path: CameraPath::Glide,
+            sensor: SensorModel::default(),
         }
     }
 }
@@ -206,6 +210,15 @@ pub fn render_room(
             options.frames, options.width, options.height, options.fps
         )));
     }
+    let exposure = options.sensor.exposure_s;
+    if !(0.0..1.0 / options.fps).contains(&exposure) {
+        return Err(SynthError::Options(format!(
+            "room: exposure {:.1} ms must be at least 0 and shorter than a frame ({:.1} ms at {} fps)",
+            exposure * 1e3,
+            1e3 / options.fps,
+            options.fps
+        )));
+    }
     if output.exists()
         && std::fs::read_dir(output)
             .map_err(io(output))?
@@ -239,8 +252,12 @@ pub fn render_room(
         .collect();
 
     for_each_frame("room", options.frames, |k| {
-        let rows = row_poses(options.path, stamps[k] - t0, duration, h, camera.readout_s);
-        let (rgb, depth) = render_frame(&rows, &rays, w, h, camera);
+        let t = stamps[k] - t0;
+        let (rgb, mut depth) = render_exposed(options, (t, duration), &rays, camera);
+        options
+            .sensor
+            .depth
+            .degrade(&mut depth, (w, h), camera.depth_scale, camera.fx, k as u64);
         let name = format!("{:.6}.png", stamps[k]);
         rgb.save(output.join("rgb").join(&name))
             .and_then(|()| depth.save(output.join("depth").join(&name)))
@@ -250,9 +267,13 @@ pub fn render_room(
             })
     })?;
 
-    let header = "# dynslam room: rendered by dynslam (scenes::room), exact depth and poses\n# timestamp filename\n";
-    let mut rgb_txt = String::from(header);
-    let mut depth_txt = String::from(header);
+    let header = format!(
+        "# dynslam room: rendered by dynslam (scenes::room), exact poses, depth {:?}, exposure {:.1} ms\n# timestamp filename\n",
+        options.sensor.depth,
+        options.sensor.exposure_s * 1e3
+    );
+    let mut rgb_txt = header.clone();
+    let mut depth_txt = header;
     let mut assoc = String::new();
     for t in &stamps {
         rgb_txt += &format!("{t:.6} rgb/{t:.6}.png\n");
@@ -322,6 +343,42 @@ fn row_poses(
             path.pose(t + offset, duration)
         })
         .collect()
+}
+
+/// Sub-frames a blurred frame averages over its exposure.
+const BLUR_SAMPLES: usize = 5;
+
+/// One frame at time `t` of a `duration` long path: colour averaged over
+/// the exposure (motion blur, [`BLUR_SAMPLES`] sub-frames, each with the
+/// rolling shutter), depth at the frame's instant.
+fn render_exposed(
+    options: &RoomOptions,
+    (t, duration): (f64, f64),
+    rays: &[Vector3<f64>],
+    camera: &Camera,
+) -> (RgbImage, ImageBuffer<Luma<u16>, Vec<u16>>) {
+    let (w, h) = (options.width, options.height);
+    let rows = |t| row_poses(options.path, t, duration, h, camera.readout_s);
+    let (rgb, depth) = render_frame(&rows(t), rays, w, h, camera);
+    let exposure = options.sensor.exposure_s;
+    if exposure <= 0.0 {
+        return (rgb, depth);
+    }
+    let mut sum: Vec<u32> = rgb.as_raw().iter().map(|&c| c as u32).collect();
+    for i in 0..BLUR_SAMPLES {
+        let offset = exposure * (i as f64 / (BLUR_SAMPLES - 1) as f64 - 0.5);
+        if i == BLUR_SAMPLES / 2 {
+            continue; // the frame's instant, rendered above
+        }
+        let (sub, _) = render_frame(&rows(t + offset), rays, w, h, camera);
+        for (s, &c) in sum.iter_mut().zip(sub.as_raw()) {
+            *s += c as u32;
+        }
+    }
+    let n = BLUR_SAMPLES as u32;
+    let blurred = sum.iter().map(|&s| ((s + n / 2) / n) as u8).collect();
+    let rgb = RgbImage::from_raw(w as u32, h as u32, blurred).expect("the frame's size");
+    (rgb, depth)
 }
 
 /// Colour and 16-bit depth of one frame, row `y` seen from `rows[y]`.
@@ -652,5 +709,83 @@ mod tests {
             Err(SynthError::OutputNotEmpty(_))
         ));
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// Motion blur averages the colour over the exposure (less fine detail,
+    /// as a moving camera gets) and leaves depth at the frame's instant; an
+    /// exposure as long as a frame is refused; the Kinect model leaves holes.
+    #[test]
+    fn exposure_blurs_the_colour_and_the_sensor_degrades_depth() {
+        let cam = camera();
+        let cam_small = Camera {
+            fx: cam.fx / 4.0,
+            fy: cam.fy / 4.0,
+            cx: cam.cx / 4.0,
+            cy: cam.cy / 4.0,
+            ..cam
+        };
+        let base = std::env::temp_dir().join(format!("dynslam-room-blur-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&base);
+        let render = |name: &str, sensor: SensorModel| {
+            let opts = RoomOptions {
+                frames: 2,
+                width: 160,
+                height: 120,
+                path: CameraPath::Circuit,
+                sensor,
+                ..Default::default()
+            };
+            let dir = base.join(name);
+            render_room(&dir, &cam_small, &opts).map(|_| {
+                let rgb = image::open(dir.join("rgb/1000.033333.png"))
+                    .unwrap()
+                    .into_luma8();
+                let depth = image::open(dir.join("depth/1000.033333.png"))
+                    .unwrap()
+                    .into_luma16();
+                (rgb, depth)
+            })
+        };
+        let detail = |g: &image::GrayImage| -> u64 {
+            g.as_raw()
+                .windows(2)
+                .map(|p| (p[0] as i32 - p[1] as i32).unsigned_abs() as u64)
+                .sum()
+        };
+        let (sharp, sharp_depth) = render("sharp", SensorModel::default()).unwrap();
+        let blurred = SensorModel {
+            exposure_s: 0.02,
+            ..Default::default()
+        };
+        let (soft, soft_depth) = render("blurred", blurred).unwrap();
+        assert_eq!(sharp_depth, soft_depth);
+        assert!(
+            (detail(&soft) as f64) < 0.9 * detail(&sharp) as f64,
+            "detail {} blurred against {} sharp",
+            detail(&soft),
+            detail(&sharp)
+        );
+        let too_long = SensorModel {
+            exposure_s: 0.04,
+            ..Default::default()
+        };
+        let e = render("too-long", too_long).unwrap_err().to_string();
+        assert!(e.contains("exposure 40.0 ms"), "{e}");
+        let kinect = SensorModel {
+            depth: crate::sensor::DepthSensor::Kinect,
+            ..Default::default()
+        };
+        let (_, noisy) = render("kinect", kinect).unwrap();
+        let holes = noisy.pixels().filter(|p| p[0] == 0).count();
+        let changed = noisy
+            .pixels()
+            .zip(sharp_depth.pixels())
+            .filter(|(a, b)| a != b)
+            .count();
+        assert!(
+            holes > 0 && changed > noisy.len() / 2,
+            "{holes} holes, {changed} changed"
+        );
+        let _ = std::fs::remove_dir_all(&base);
     }
 }

@@ -105,6 +105,18 @@ pub(crate) enum Command {
         /// Frames at 30 fps (the circuit takes them all to close).
         #[arg(long, default_value_t = 150)]
         frames: usize,
+        /// Depth as a camera measures it: `exact` (the ray cast's), `kinect`
+        /// (structured light: noise growing with the square of the depth,
+        /// disparity steps, the projector's shadow beside foreground edges,
+        /// jagged edges, speckle holes, 0.5-4.5 m) or `realsense` (active
+        /// stereo: 0.3-6 m, less noise near, no steps).
+        #[arg(long, value_enum, default_value_t = DepthSensorArg::Exact)]
+        depth_sensor: DepthSensorArg,
+        /// Exposure in ms: the colour is averaged over it (motion blur; 0:
+        /// sharp); shorter than a frame. 10-20 ms blurs fast turns as fr1's
+        /// camera does.
+        #[arg(long, default_value_t = 0.0)]
+        exposure_ms: f64,
     },
     /// Make a dynamic sequence: people (and boxes) walking through a TUM
     /// RGB-D sequence, with ground-truth masks (masks/, movers/, objects.json).
@@ -234,6 +246,13 @@ pub(crate) enum CameraPathArg {
     Glide,
     Circuit,
     Orbit,
+}
+
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub(crate) enum DepthSensorArg {
+    Exact,
+    Kinect,
+    Realsense,
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]

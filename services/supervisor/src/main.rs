@@ -16,8 +16,8 @@ use supervisor::run_dir;
 
 mod cli;
 use cli::{
-    Align, BehavioursArg, CameraPathArg, Cli, Command, Mode, OcclusionArg, RunArgs, SensorArg,
-    VocabAction,
+    Align, BehavioursArg, CameraPathArg, Cli, Command, DepthSensorArg, Mode, OcclusionArg, RunArgs,
+    SensorArg, VocabAction,
 };
 
 fn main() -> ExitCode {
@@ -75,7 +75,9 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             output,
             path,
             frames,
-        } => render(&output, path, frames),
+            depth_sensor,
+            exposure_ms,
+        } => render(&output, path, frames, (depth_sensor, exposure_ms)),
         Command::Synth {
             input,
             output,
@@ -401,14 +403,28 @@ fn vocab(action: VocabAction) -> Result<ExitCode> {
 }
 
 /// `dynslam render`: the rendered room (`frames` frames along `path`) as
-/// a TUM RGB-D folder in `output`.
-fn render(output: &std::path::Path, path: CameraPathArg, frames: usize) -> Result<ExitCode> {
+/// a TUM RGB-D folder in `output`, its depth as `sensor` measures it and
+/// its colour exposed for the given ms.
+fn render(
+    output: &std::path::Path,
+    path: CameraPathArg,
+    frames: usize,
+    (sensor, exposure_ms): (DepthSensorArg, f64),
+) -> Result<ExitCode> {
     let options = scenes::room::RoomOptions {
         frames,
         path: match path {
             CameraPathArg::Glide => scenes::room::CameraPath::Glide,
             CameraPathArg::Circuit => scenes::room::CameraPath::Circuit,
             CameraPathArg::Orbit => scenes::room::CameraPath::Orbit,
+        },
+        sensor: scenes::sensor::SensorModel {
+            depth: match sensor {
+                DepthSensorArg::Exact => scenes::sensor::DepthSensor::Exact,
+                DepthSensorArg::Kinect => scenes::sensor::DepthSensor::Kinect,
+                DepthSensorArg::Realsense => scenes::sensor::DepthSensor::RealSense,
+            },
+            exposure_s: exposure_ms / 1e3,
         },
         ..Default::default()
     };

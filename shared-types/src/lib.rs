@@ -417,6 +417,9 @@ pub struct TrackCounts {
     /// optimisation.
     pub extract_us: u32,
     pub mapping_us: u32,
+    /// 1: the frame was tracked by following the last frame's points with
+    /// optical flow, without ORB extraction (`services.slam.flow_frames`).
+    pub tracked_by_flow: u32,
 }
 
 /// SLAM's result for one frame, and its wish for the next one.

@@ -63,5 +63,6 @@ pub fn counts(c: &FrameCounts) -> TrackCounts {
         keyframes: c.keyframes,
         extract_us: c.extract_us,
         mapping_us: c.mapping_us,
+        tracked_by_flow: c.tracked_by_flow as u32,
     }
 }

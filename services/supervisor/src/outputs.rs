@@ -43,6 +43,9 @@ pub struct FrameRow {
     /// SLAM's feature extraction and local mapping time (microseconds).
     pub extract_us: u32,
     pub mapping_us: u32,
+    /// Tracked by following the last frame's points with optical flow (no
+    /// ORB extraction: `services.slam.flow_frames`).
+    pub tracked_by_flow: bool,
     pub stamps: StageStamps,
     /// When the supervisor received the Track (end of the frame's path).
     pub track_received_ns: u64,
@@ -93,6 +96,9 @@ struct CsvRow {
     /// Absent in frames.csv of older versions (a resumed run).
     #[serde(default)]
     mask_origin: String,
+    /// Absent in frames.csv of older versions (a resumed run).
+    #[serde(default)]
+    tracked_by_flow: u8,
     note: String,
 }
 
@@ -100,7 +106,7 @@ struct CsvRow {
 const HEADER: &str = "seq,timestamp,state,route,mask_source,keyframe,next_keyframe,\
 tx,ty,tz,qx,qy,qz,qw,features,features_masked,features_moving,inliers,map_points,keyframes,\
 slam_extract_us,slam_mapping_us,capture_ns,published_ns,routed_ns,masks_start_ns,masks_done_ns,slam_received_ns,\
-track_start_ns,track_done_ns,track_received_ns,mask_origin,note";
+track_start_ns,track_done_ns,track_received_ns,mask_origin,tracked_by_flow,note";
 
 impl From<&FrameRow> for CsvRow {
     fn from(r: &FrameRow) -> Self {
@@ -139,6 +145,7 @@ impl From<&FrameRow> for CsvRow {
             track_done_ns: s.track_done_ns,
             track_received_ns: r.track_received_ns,
             mask_origin: r.mask_origin.clone(),
+            tracked_by_flow: r.tracked_by_flow as u8,
             // One frame, one line (a resumed run cuts a half-written last
             // line): line breaks in a note become spaces, commas are quoted.
             note: r.note.replace(['\n', '\r'], " "),
@@ -178,6 +185,7 @@ impl From<CsvRow> for FrameRow {
             },
             track_received_ns: c.track_received_ns,
             mask_origin: c.mask_origin,
+            tracked_by_flow: c.tracked_by_flow != 0,
             note: c.note,
         }
     }
@@ -331,6 +339,7 @@ mod tests {
             mask_source: "segmenter".into(),
             mask_origin: "remote".into(),
             keyframe: true,
+            tracked_by_flow: true,
             pose: [1.0, 2.0, 3.0, 0.0, 0.0, 0.0, 1.0],
             stamps: StageStamps {
                 capture_ns: 10,

@@ -111,9 +111,13 @@ impl System {
         extract_ms: &mut f64,
     ) -> Tracked {
         if let Some(points) = followed.as_deref() {
+            let reference = self
+                .pending_keyframe
+                .as_ref()
+                .map_or(self.tracking.reference_inliers(), |p| p.inliers);
             if let Some(tracked) =
                 self.tracking
-                    .track_followed(&self.map, frame, points, input.timestamp)
+                    .track_followed(&self.map, frame, (points, reference), input.timestamp)
             {
                 return tracked;
             }

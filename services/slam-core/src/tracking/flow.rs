@@ -21,8 +21,9 @@ use crate::map::Map;
 use crate::optimizer::pose::{is_finite_pose, optimize_pose};
 
 /// A frame tracked by flow keeps at least this share of the reference
-/// keyframe's inliers, else it is extracted in full: above the keyframe
-/// rule's 0.75 so that the rule always sees a fully extracted frame.
+/// keyframe's inliers (or, while a keyframe waits for its masks, of that
+/// keyframe's), else it is extracted in full: above the keyframe rule's
+/// 0.75 so that the rule always sees a fully extracted frame.
 const KEEP_OF_REFERENCE: f64 = 0.8;
 
 /// Lucas-Kanade as flow tracking runs it: a 9x9 window (ORB keypoints are
@@ -161,15 +162,19 @@ impl Tracking {
 
     /// Tracks a frame whose keypoints were followed by flow (`points`: the
     /// map point of each): the pose optimised from the motion model's
-    /// prediction against them. None when too few hold (the frame is then
-    /// extracted in full).
+    /// prediction against them. None when fewer than [`KEEP_OF_REFERENCE`]
+    /// of `reference` inliers hold (the frame is then extracted in full).
     pub(crate) fn track_followed(
         &self,
         map: &Map,
         frame: &Frame,
-        points: &[usize],
+        (points, reference): (&[usize], usize),
         timestamp: f64,
     ) -> Option<Tracked> {
+        let needed = (KEEP_OF_REFERENCE * reference as f64).max(self.params.min_inliers as f64);
+        if (points.len() as f64) < needed {
+            return None;
+        }
         let predicted = self.predicted(&self.last_pose?, timestamp);
         // Local mapping may have culled some meanwhile.
         let pairs: Vec<(usize, usize)> = points
@@ -181,9 +186,7 @@ impl Tracking {
         let obs = self.observations(map, frame, &pairs);
         let (pose_cw, inlier) = optimize_pose(&self.camera, &predicted, &obs);
         let inliers = inlier.iter().filter(|&&b| b).count();
-        let enough = inliers >= self.params.min_inliers
-            && inliers as f64 >= KEEP_OF_REFERENCE * self.reference_inliers as f64;
-        if !enough || !is_finite_pose(&pose_cw) {
+        if (inliers as f64) < needed || !is_finite_pose(&pose_cw) {
             return None;
         }
         let mut matched = vec![None; points.len()];

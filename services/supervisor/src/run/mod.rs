@@ -153,6 +153,7 @@ impl Supervisor {
             keyframes: t.counts.keyframes,
             extract_us: t.counts.extract_us,
             mapping_us: t.counts.mapping_us,
+            tracked_by_flow: t.counts.tracked_by_flow != 0,
             stamps: t.stamps,
             track_received_ns: received,
             note: pending.map(|p| p.note).unwrap_or_default(),

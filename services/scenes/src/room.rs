@@ -593,6 +593,18 @@ mod tests {
         Camera::tum_fr1()
     }
 
+    /// The camera for 160x120 renders: fr1's at a quarter of the size.
+    fn quarter_camera() -> Camera {
+        let cam = camera();
+        Camera {
+            fx: cam.fx / 4.0,
+            fy: cam.fy / 4.0,
+            cx: cam.cx / 4.0,
+            cy: cam.cy / 4.0,
+            ..cam
+        }
+    }
+
     #[test]
     fn rays_hit_the_room_at_the_distance_the_geometry_says() {
         let origin = Vector3::new(0.0, 0.0, 0.0);
@@ -647,7 +659,6 @@ mod tests {
 
     #[test]
     fn rendered_depth_matches_the_ray_cast_and_frames_are_textured() {
-        let cam = camera();
         let dir = std::env::temp_dir().join(format!("dynslam-room-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         let opts = RoomOptions {
@@ -656,13 +667,7 @@ mod tests {
             height: 120,
             ..Default::default()
         };
-        let cam_small = Camera {
-            fx: cam.fx / 4.0,
-            fy: cam.fy / 4.0,
-            cx: cam.cx / 4.0,
-            cy: cam.cy / 4.0,
-            ..cam
-        };
+        let cam_small = quarter_camera();
         assert_eq!(render_room(&dir, &cam_small, &opts).unwrap(), 2);
         let gt = ground_truth(&dir).unwrap();
         assert_eq!(gt.poses.len(), 2);
@@ -716,14 +721,7 @@ mod tests {
     /// exposure as long as a frame is refused; the Kinect model leaves holes.
     #[test]
     fn exposure_blurs_the_colour_and_the_sensor_degrades_depth() {
-        let cam = camera();
-        let cam_small = Camera {
-            fx: cam.fx / 4.0,
-            fy: cam.fy / 4.0,
-            cx: cam.cx / 4.0,
-            cy: cam.cy / 4.0,
-            ..cam
-        };
+        let cam_small = quarter_camera();
         let base = std::env::temp_dir().join(format!("dynslam-room-blur-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&base);
         let render = |name: &str, sensor: SensorModel| {

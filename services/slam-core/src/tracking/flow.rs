@@ -1,8 +1,8 @@
 //! Frames between keyframes tracked without ORB extraction (NGD-SLAM's
 //! hybrid tracking): the last tracked frame's inliers are followed into the
 //! new frame with pyramidal Lucas-Kanade ([`crate::flow::lk`]), each from
-//! where the motion model projects its map point, and the pose is
-//! optimised against those map points as after search by projection. A
+//! where the motion model moves it (with its depth), and the pose is
+//! optimised against their map points as after search by projection. A
 //! frame tracked so keeps the descriptors of its map points (it never
 //! becomes a keyframe) and is not given to the motion check; the next
 //! full extraction (a keyframe due, too few points followed, or

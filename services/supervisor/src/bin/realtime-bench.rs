@@ -6,9 +6,9 @@
 //! Per condition it prints the tracked rate (tracked frames per second of
 //! the stream), dropped %, end-to-end p50/p99, the share of tracked frames
 //! that had masks ("masked") and of those whose masks removed features
-//! ("removing": empty masks do not), and the ATE next to the lockstep ATE;
-//! every run's
-//! figures go to `bench-results/realtime.json`.
+//! ("removing": empty masks do not), the share tracked by optical flow
+//! ("flow", `services.slam.flow_frames`), and the ATE next to the lockstep
+//! ATE; every run's figures go to `bench-results/realtime.json`.
 //!
 //! With `--bridge ENDPOINT` every run is made twice, the ROS 2 bridge off
 //! and on (publishing to the Zenoh router at ENDPOINT), the two alternated
@@ -112,6 +112,9 @@ struct RunFigures {
     /// masks that were there but empty (a propagator that lost every
     /// object) count in `masked_share`, not here.
     masks_removed_features_share: f64,
+    /// Share of tracked frames tracked by optical flow, without ORB
+    /// extraction (`services.slam.flow_frames`; 0 when off).
+    by_flow_share: f64,
     /// Keyframes the run made: in real time a keyframe waits for its
     /// frame's segmenter masks, and under load the segmenter's pace caps
     /// them (docs/measurements.md, "What real time adds, separated").
@@ -346,7 +349,7 @@ fn main() -> Result<()> {
         args.runs
     );
     println!(
-        "{:>6} {:>5} {:>6} {:>6} {:>18} {:>9} {:>10} {:>10} {:>8} {:>9} {:>14} {:>22}",
+        "{:>6} {:>5} {:>6} {:>6} {:>18} {:>9} {:>10} {:>10} {:>8} {:>9} {:>6} {:>14} {:>22}",
         "fps in",
         "busy",
         "seg px",
@@ -357,6 +360,7 @@ fn main() -> Result<()> {
         "e2e p99",
         "masked",
         "removing",
+        "flow",
         "kf (lockstep)",
         "ATE (lockstep)"
     );
@@ -389,7 +393,7 @@ fn main() -> Result<()> {
             .map(|r| r.tracked_fps)
             .fold(f64::INFINITY, f64::min);
         println!(
-            "{:>6} {:>5} {:>6} {:>6} {:>10.1} ({:>5.1}) {:>8.1}% {:>10} {:>10} {:>7.0}% {:>8.0}% {:>6.0} ({:>5}) {:>10} ({})",
+            "{:>6} {:>5} {:>6} {:>6} {:>10.1} ({:>5.1}) {:>8.1}% {:>10} {:>10} {:>7.0}% {:>8.0}% {:>5.0}% {:>6.0} ({:>5}) {:>10} ({})",
             fps,
             load,
             condition
@@ -403,6 +407,7 @@ fn main() -> Result<()> {
             fmt_ms(med(&|r| r.end_to_end_p99_ms)),
             100.0 * med(&|r| Some(r.masked_share)).unwrap_or(0.0),
             100.0 * med(&|r| Some(r.masks_removed_features_share)).unwrap_or(0.0),
+            100.0 * med(&|r| Some(r.by_flow_share)).unwrap_or(0.0),
             med(&|r| Some(r.keyframes as f64)).unwrap_or(0.0),
             lockstep_keyframes.map_or("-".to_string(), |k| k.to_string()),
             fmt_m(med(&|r| r.ate_rmse_m)),
@@ -602,6 +607,8 @@ fn figures(rows: &[FrameRow], speed: f64, run_dir: PathBuf) -> RunFigures {
         dropped_pct: 100.0 * dropped as f64 / rows.len().max(1) as f64,
         masked_share: masked as f64 / tracked.len().max(1) as f64,
         masks_removed_features_share: removing as f64 / tracked.len().max(1) as f64,
+        by_flow_share: tracked.iter().filter(|r| r.tracked_by_flow).count() as f64
+            / tracked.len().max(1) as f64,
         keyframes: tracked.iter().filter(|r| r.keyframe).count(),
         end_to_end_p50_ms: None,
         end_to_end_p99_ms: None,

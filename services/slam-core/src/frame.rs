@@ -155,7 +155,10 @@ impl Frame {
         } = *context;
         let (width, height) = (input.width, input.height);
         let gray = GrayU8::from_rgb(input.rgb, width, height);
-        let pyramid = (params.flow_frames > 0).then(|| Arc::new(flow_pyramid(&gray)));
+        // Only a frame that flow tracking may follow from needs it (RGB-D:
+        // `Tracking::may_follow`).
+        let pyramid = (params.flow_frames > 0 && !params.is_monocular())
+            .then(|| Arc::new(flow_pyramid(&gray)));
         let mask = input
             .mask
             .map(|m| DynamicMask::new(m, width, height, params.mask_dilation_px));

@@ -35,7 +35,7 @@ struct MonocularRun {
 /// masks when `masks`.
 fn track_monocular(dir: &Path, masks: bool) -> MonocularRun {
     let truth = Trajectory::load_tum(&dir.join("groundtruth.txt")).unwrap();
-    let mask_list = masks.then(|| camera_reader::source::MaskList::open(dir).unwrap().unwrap());
+    let mask_list = masks.then(|| datasets::source::MaskList::open(dir).unwrap().unwrap());
     let mut sys = System::new(SlamParams::monocular(), Camera::tum_fr1());
     let mut started_at = None;
     let mut tracked_after = 0;

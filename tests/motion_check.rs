@@ -55,7 +55,7 @@ fn a_carried_box_is_found_by_the_motion_check_without_any_mask() {
         cy: 255.3,
     };
     synthesize(&shared_tum(), &seq, &fr1, 5000.0, &options, None).unwrap();
-    let frames = camera_reader::source::tum_folder(&seq, 0.02).unwrap();
+    let frames = datasets::source::tum_folder(&seq, 0.02).unwrap();
     let movers: Vec<std::path::PathBuf> = std::fs::read_to_string(seq.join("movers.txt"))
         .unwrap()
         .lines()
@@ -142,7 +142,7 @@ fn a_static_room_with_kinect_depth_and_blur_keeps_its_features() {
         ..Default::default()
     };
     render_room(&seq, &Camera::tum_fr1(), &options).unwrap();
-    let frames = camera_reader::source::tum_folder(&seq, 0.02).unwrap();
+    let frames = datasets::source::tum_folder(&seq, 0.02).unwrap();
     let images: Vec<_> = frames
         .iter()
         .map(|f| {

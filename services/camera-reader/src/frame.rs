@@ -2,8 +2,8 @@
 
 use shared_types::{frame_flags, write_error_text, FrameHeader, PixelFormat};
 
-use crate::decode::{decode_depth_into, decode_rgb_into, DecodeError};
-use crate::source::FrameEntry;
+use datasets::decode::{decode_depth_into, decode_rgb_into, DecodeError};
+use datasets::source::FrameEntry;
 
 /// Size and depth scale of the frames of one run.
 #[derive(Debug, Clone, Copy)]

@@ -10,11 +10,11 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::Result;
-use camera_reader::decode::png_size;
 use camera_reader::frame::{decode_frame, header_for, mark_bad, FrameGeometry};
-use camera_reader::source::{configured_frames, FrameEntry};
 use camera_reader::v4l2::{Camera, Captured};
 use clap::Parser;
+use datasets::decode::png_size;
+use datasets::source::FrameEntry;
 use pipeline::clock::now_ns;
 use pipeline::config::{ClockMode, SourceKind};
 use pipeline::runtime::{run_service, InputError, ServiceArgs, ServiceContext};
@@ -42,7 +42,9 @@ fn main() -> ExitCode {
 
 fn load_source(ctx: &ServiceContext) -> Result<(Vec<FrameEntry>, FrameGeometry)> {
     let src = &ctx.config.source;
-    let frames = configured_frames(src).map_err(|e| InputError(e.to_string()))?;
+    let frames = src
+        .recorded_frames()
+        .map_err(|e| InputError(e.to_string()))?;
     // The sequence's size, from its first frames (one odd or broken first
     // frame does not decide it); it must fit shared memory.
     let (width, height) = sequence_size(&frames)?;

@@ -13,7 +13,6 @@
 pub mod cameras;
 pub mod clock;
 pub mod config;
-pub mod fuzz;
 pub mod mask_worker;
 pub mod progress;
 pub mod provision;

@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
 
-use camera_reader::source::{tum_folder, FrameEntry};
+use datasets::source::{tum_folder, FrameEntry};
 use image::{ImageBuffer, Luma};
 use nalgebra::Isometry3;
 use pipeline::progress::Progress;
@@ -29,7 +29,7 @@ use crate::walkers::{walkers, Kind, Occlusion, Stage, WalkOptions, Walker};
 #[derive(Debug, thiserror::Error)]
 pub enum SynthError {
     #[error("{0}")]
-    Source(#[from] camera_reader::source::SourceError),
+    Source(#[from] datasets::source::SourceError),
     #[error("{0}")]
     Trajectory(#[from] slam_core::io::trajectory::TrajectoryError),
     #[error("options: {0}")]

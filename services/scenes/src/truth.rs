@@ -1,5 +1,5 @@
 //! How predicted masks are scored against the ground-truth masks of a
-//! synthesised sequence (read with `camera_reader::source::MaskList`).
+//! synthesised sequence (read with `datasets::source::MaskList`).
 //!
 //! Scoring is per ground-truth person: its IoU with the best-overlapping
 //! predicted instance. Union-of-everything IoU would punish a segmenter for

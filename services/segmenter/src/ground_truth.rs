@@ -6,7 +6,7 @@
 use std::path::Path;
 
 use anyhow::{bail, Result};
-use camera_reader::source::MaskList;
+use datasets::source::MaskList;
 use pipeline::mask_worker::MaskModel;
 use pipeline::views::FrameView;
 use shared_types::{Instance, MAX_INSTANCES};

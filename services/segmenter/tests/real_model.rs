@@ -437,19 +437,15 @@ fn model_480(score: f32, weak: f32) -> YoloSeg {
 /// Every 10th frame of the static shared sequence with its depth.
 fn static_frames_with_depth() -> Vec<(Vec<u8>, Vec<u8>)> {
     let dir = repo().join("../shared/data/tum/rgbd_dataset_freiburg1_rpy_first300");
-    let entries = camera_reader::source::tum_folder(&dir, 0.02).unwrap();
+    let entries = datasets::source::tum_folder(&dir, 0.02).unwrap();
     entries
         .iter()
         .step_by(10)
         .map(|e| {
             let rgb = image::open(&e.rgb).unwrap().to_rgb8().into_raw();
             let mut depth = vec![0u8; 640 * 480 * 2];
-            camera_reader::decode::decode_depth_into(
-                e.depth.as_ref().unwrap(),
-                (640, 480),
-                &mut depth,
-            )
-            .unwrap();
+            datasets::decode::decode_depth_into(e.depth.as_ref().unwrap(), (640, 480), &mut depth)
+                .unwrap();
             (rgb, depth)
         })
         .collect()

@@ -5,7 +5,7 @@
 
 use std::path::Path;
 
-use camera_reader::source::tum_folder;
+use datasets::source::tum_folder;
 use slam_core::features::orb::{GrayU8, OrbExtractor, OrbParams};
 use slam_core::features::simd::{Kernels, SIMD_ENV};
 

@@ -8,7 +8,7 @@
 use std::path::Path;
 
 use anyhow::{bail, Context, Result};
-use camera_reader::source::MaskList;
+use datasets::source::MaskList;
 
 /// The ignore regions of a sequence folder.
 #[derive(Default)]

@@ -22,8 +22,8 @@ use std::io::Write;
 use std::path::Path;
 
 use anyhow::{bail, Context, Result};
-use camera_reader::decode::decode_depth_into;
-use camera_reader::source::{tum_folder, MaskList};
+use datasets::decode::decode_depth_into;
+use datasets::source::{tum_folder, MaskList};
 use onnx_runtime::init_runtime;
 use pipeline::config::PipelineConfig;
 use pipeline::progress::Progress;

@@ -17,7 +17,7 @@ use std::sync::mpsc::{sync_channel, SyncSender, TrySendError};
 use std::thread::JoinHandle;
 
 use anyhow::{Context, Result};
-use camera_reader::source::MaskList;
+use datasets::source::MaskList;
 use image::GrayImage;
 use pipeline::config::SaveMasks;
 use pipeline::views::MasksView;

@@ -11,7 +11,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use camera_reader::source::{configured_frames, FrameEntry, MaskList};
+use datasets::source::{FrameEntry, MaskList};
 use image::{imageops, Rgb, RgbImage};
 use pipeline::config::PipelineConfig;
 use plotters::style::RGBColor;
@@ -235,7 +235,7 @@ pub fn write(
 
     // Masks against ground truth, and the strip of frames.
     let mask_rows = read_rows(run_dir)?;
-    let frames = configured_frames(&config.source).ok();
+    let frames = config.source.recorded_frames().ok();
     let truth = MaskList::open(dataset).ok().flatten();
     let (scores, ious) = match &truth {
         Some(t) => {

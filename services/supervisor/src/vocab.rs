@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use camera_reader::source::{image_folder, SourceError};
+use datasets::source::{image_folder, SourceError};
 use pipeline::provision::sha256_of;
 use slam_core::features::orb::{GrayU8, OrbExtractor};
 use slam_core::place_recognition::vocabulary::{TrainOptions, Vocabulary};

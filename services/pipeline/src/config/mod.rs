@@ -917,7 +917,7 @@ mod tests {
 
     #[test]
     fn random_configs_are_errors_or_values_never_panics() {
-        for text in crate::fuzz::texts(7, 3000) {
+        for text in datasets::fuzz::texts(7, 3000) {
             let _ = PipelineConfig::parse(&text);
         }
     }

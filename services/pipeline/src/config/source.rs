@@ -1,5 +1,6 @@
 //! `[source]`: what the camera-reader plays.
 
+use datasets::source::{image_folder, repeated, tum_folder, FrameEntry, SourceError};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
@@ -129,6 +130,23 @@ impl Default for SourceConfig {
 }
 
 impl SourceConfig {
+    /// The frames a run with these settings plays, in order: the folder
+    /// read as `kind` says, cut to `limit` (0: all), played `repeat` times.
+    /// A live source has no list: [`SourceError::Live`].
+    pub fn recorded_frames(&self) -> Result<Vec<FrameEntry>, SourceError> {
+        let mut frames = match self.kind {
+            SourceKind::Tum => tum_folder(&self.path, self.max_time_diff),
+            SourceKind::Images => image_folder(&self.path, self.image_period),
+            SourceKind::External => Err(SourceError::Live("external")),
+            SourceKind::V4l2 => Err(SourceError::Live("v4l2")),
+            SourceKind::Ros2 => Err(SourceError::Live("ros2")),
+        }?;
+        if self.limit > 0 {
+            frames.truncate(self.limit as usize);
+        }
+        Ok(repeated(frames, self.repeat))
+    }
+
     /// Checks what the source needs of the run and the SLAM (depth, the
     /// clock mode) and a live source's own settings.
     pub fn validate(&self, run: &RunConfig, slam: &SlamConfig) -> Result<(), String> {

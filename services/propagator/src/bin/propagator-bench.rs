@@ -16,9 +16,9 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use camera_reader::decode::decode_depth_into;
-use camera_reader::source::tum_folder;
 use clap::Parser;
+use datasets::decode::decode_depth_into;
+use datasets::source::tum_folder;
 use pipeline::config::{CameraConfig, OnnxRuntimeConfig, PropagatorConfig, RoutingConfig};
 use pipeline::stats::percentile;
 use propagator::newcomers::{DepthImage, NewcomerCheck};
@@ -192,7 +192,7 @@ fn main() -> Result<()> {
 /// Milliseconds of the newcomer check per pair of consecutive frames (up to
 /// `frames` pairs, nothing followed), and the requests it made.
 fn time_newcomer_check(
-    entries: &[camera_reader::source::FrameEntry],
+    entries: &[datasets::source::FrameEntry],
     frames: usize,
 ) -> Result<(Vec<f64>, u64)> {
     let mut check = NewcomerCheck::for_pipeline(

@@ -13,9 +13,9 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
-use camera_reader::decode::decode_depth_into;
-use camera_reader::source::tum_folder;
 use clap::{Parser, Subcommand};
+use datasets::decode::decode_depth_into;
+use datasets::source::tum_folder;
 use pipeline::config::PipelineConfig;
 use pipeline::mask_worker::MaskModel;
 use pipeline::stats::percentile;

@@ -16,9 +16,9 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use camera_reader::decode::decode_depth_into;
-use camera_reader::source::tum_folder;
 use clap::Parser;
+use datasets::decode::decode_depth_into;
+use datasets::source::tum_folder;
 use onnx_runtime::init_runtime;
 use pipeline::config::PipelineConfig;
 use pipeline::stats::percentile;

@@ -191,7 +191,7 @@ mod tests {
 
     #[test]
     fn random_trajectories_are_errors_or_values_never_panics() {
-        for text in pipeline::fuzz::texts(13, 3000) {
+        for text in datasets::fuzz::texts(13, 3000) {
             if let Err(e) = Trajectory::parse_tum(&text, Path::new("t.txt")) {
                 assert!(e.to_string().starts_with("t.txt"), "{e}");
             }

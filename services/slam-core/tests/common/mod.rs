@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use camera_reader::source::tum_folder;
+use datasets::source::tum_folder;
 
 pub type Depth = image::ImageBuffer<image::Luma<u16>, Vec<u16>>;
 

@@ -22,8 +22,8 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use camera_reader::source::{tum_folder, FrameEntry, MaskList};
 use clap::Parser;
+use datasets::source::{tum_folder, FrameEntry, MaskList};
 use pipeline::config::{CameraConfig, PipelineConfig};
 use pipeline::progress::Progress;
 use pipeline::stats::percentile;
@@ -249,7 +249,7 @@ fn main() -> Result<()> {
     );
     let pass_len = frames.len();
     let first_pass: Vec<f64> = frames.iter().map(|f| f.timestamp).collect();
-    let frames = camera_reader::source::repeated(frames, args.repeat);
+    let frames = datasets::source::repeated(frames, args.repeat);
     let mut inserted_per_pass = vec![0usize; args.repeat as usize];
     let truth = if args.masks {
         Some(

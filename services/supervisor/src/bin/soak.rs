@@ -110,7 +110,9 @@ fn main() -> Result<()> {
     let mut cfg = PipelineConfig::default();
     cfg.source.path = dataset.clone();
     cfg.run.mode = ClockMode::Realtime;
-    let frames = camera_reader::source::configured_frames(&cfg.source)
+    let frames = cfg
+        .source
+        .recorded_frames()
         .with_context(|| format!("cannot list {}", dataset.display()))?;
     let span = frames.last().map_or(0.0, |l| l.timestamp) - frames[0].timestamp;
     cfg.source.repeat = ((args.minutes * 60.0 / span.max(1.0)).ceil() as u32 + 1).max(2);

@@ -618,10 +618,10 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
     let masks = transport.slice_receiver::<MasksHeader>(Topic::Masks)?;
     // The source's frames, listed once: the progress bar's length and the
     // timestamps the ground-truth masks are looked up by.
-    let listed = camera_reader::source::configured_frames(&sup.config.source).ok();
+    let listed = sup.config.source.recorded_frames().ok();
     let expected = listed.as_ref().map_or(0, |f| f.len() as u64);
     let truth = match (
-        camera_reader::source::MaskList::open(&sup.config.source.path),
+        datasets::source::MaskList::open(&sup.config.source.path),
         listed,
     ) {
         (Ok(Some(masks)), Some(frames)) => Some(crate::mask_record::Truth {

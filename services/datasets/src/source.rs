@@ -172,24 +172,6 @@ impl MaskList {
     }
 }
 
-/// The frames a run with source settings `src` plays, in order: the
-/// folder read as `src.kind` says, cut to `src.limit` (0: all).
-pub fn configured_frames(
-    src: &pipeline::config::SourceConfig,
-) -> Result<Vec<FrameEntry>, SourceError> {
-    let mut frames = match src.kind {
-        pipeline::config::SourceKind::Tum => tum_folder(&src.path, src.max_time_diff),
-        pipeline::config::SourceKind::Images => image_folder(&src.path, src.image_period),
-        pipeline::config::SourceKind::External => Err(SourceError::Live("external")),
-        pipeline::config::SourceKind::V4l2 => Err(SourceError::Live("v4l2")),
-        pipeline::config::SourceKind::Ros2 => Err(SourceError::Live("ros2")),
-    }?;
-    if src.limit > 0 {
-        frames.truncate(src.limit as usize);
-    }
-    Ok(repeated(frames, src.repeat))
-}
-
 /// `frames` played `passes` times in a row: every pass's timestamps go on
 /// one (median) frame period after the previous pass's last frame, so time
 /// only moves forward.
@@ -460,7 +442,7 @@ mod tests {
 
     #[test]
     fn random_lists_are_errors_or_lists_never_panics() {
-        for text in pipeline::fuzz::texts(11, 3000) {
+        for text in crate::fuzz::texts(11, 3000) {
             if let Err(e) = list(&text) {
                 assert!(e.to_string().starts_with("/d/rgb.txt"), "{e}");
             }

@@ -17,8 +17,7 @@ const LARGE_FILES: [(&str, usize); 2] = [
 ];
 
 /// Functions over the limit today: (path under services/, name, lines at most).
-const LONG_FUNCTIONS: [(&str, &str, usize); 7] = [
-    ("supervisor/src/report.rs", "write", 371),
+const LONG_FUNCTIONS: [(&str, &str, usize); 6] = [
     ("slam-core/src/optimizer/local_ba.rs", "optimise", 185),
     ("propagator/src/propagate.rs", "warp_mask", 171),
     ("supervisor/src/mask_eval.rs", "evaluate", 169),

@@ -11,15 +11,11 @@ const MAX_FILE_LINES: usize = 800;
 const MAX_FN_LINES: usize = 120;
 
 /// Files over the limit today: (path under services/, lines at most).
-const LARGE_FILES: [(&str, usize); 2] = [
-    ("slam-core/src/system.rs", 950),
-    ("propagator/src/propagate.rs", 1110),
-];
+const LARGE_FILES: [(&str, usize); 1] = [("slam-core/src/system.rs", 950)];
 
 /// Functions over the limit today: (path under services/, name, lines at most).
-const LONG_FUNCTIONS: [(&str, &str, usize); 6] = [
+const LONG_FUNCTIONS: [(&str, &str, usize); 5] = [
     ("slam-core/src/optimizer/local_ba.rs", "optimise", 185),
-    ("propagator/src/propagate.rs", "warp_mask", 171),
     ("supervisor/src/mask_eval.rs", "evaluate", 169),
     ("propagator/src/newcomers.rs", "find", 160),
     ("slam-core/src/system.rs", "track_with", 126),

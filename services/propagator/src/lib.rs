@@ -3,8 +3,10 @@
 //!
 //! - [`pyramid`]: grey images and their pyramids.
 //! - [`lk`]: pyramidal Lucas-Kanade point tracking (Bouguet's formulation).
-//! - [`propagate`]: per-object motion (robust affine + interpolated residual
-//!   motion, so that non-rigid parts follow) and mask warping; a `MaskModel`.
+//! - [`propagate`]: the objects followed from prompt to prompt, catching up
+//!   with late prompts; a `MaskModel`.
+//! - [`warp`]: one object's motion (robust affine + interpolated residual
+//!   motion, so that non-rigid parts follow) and its mask warped.
 //! - [`newcomers`]: regions that move unlike the camera outside every
 //!   followed object: an early segmenter request.
 //! - [`sam2`]: the `sam2` backend, SAM 2's image encoder and prompt/mask
@@ -16,6 +18,7 @@ pub mod newcomers;
 pub mod propagate;
 pub mod sam2;
 pub mod synthetic;
+pub mod warp;
 
 /// Pyramidal Lucas-Kanade (in the SLAM core, whose tracking uses it too).
 pub use slam_core::flow::lk;

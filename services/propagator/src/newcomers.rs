@@ -179,6 +179,9 @@ struct Flow {
 /// false requests on the shared sequence either.
 type Motion = SVector<f64, 6>;
 
+/// Corners to track: each one's cell on the grid, and the corners (pixels).
+type CellPoints = (Vec<(usize, usize)>, Vec<(f32, f32)>);
+
 impl Flow {
     /// The two rows of the flow equation `(du, dv) = J * motion`.
     fn rows(&self) -> [([f64; 6], f64); 2] {
@@ -437,6 +440,38 @@ impl NewcomerCheck {
             return None;
         }
         let step = self.params.cell_px.max(4);
+        // Half resolution is precise enough for residuals of several
+        // pixels, and a flat or occluded point gives up sooner.
+        let lk = LkParams {
+            finest_level: 1.min(prev.levels.len() - 1),
+            iterations: lk.iterations.min(6),
+            ..lk
+        };
+        let (cells, points) = self.corner_points(prev, followed, lk, step);
+        let flows = self.flows(prev, cur, &cells, &points, depth, lk);
+        if let Some(median) = median_flow(&flows, &self.camera) {
+            self.flow_guess = median;
+            self.unseen_shift.0 += median.0;
+            self.unseen_shift.1 += median.1;
+        }
+        // Too little background to say what the camera did.
+        if flows.len() < 24 {
+            return None;
+        }
+        let motion = self.camera_motion(&flows)?;
+        Some(self.moving_groups(&flows, &motion, step, (width / step, height / step)))
+    }
+
+    /// A corner per cell of `step` pixels (its grid position, its pixel),
+    /// for the cells no followed object covers.
+    fn corner_points(
+        &self,
+        prev: &Pyramid,
+        followed: &[&[bool]],
+        lk: LkParams,
+        step: usize,
+    ) -> CellPoints {
+        let (width, height) = (prev.levels[0].width, prev.levels[0].height);
         let (cols, rows) = (width / step, height / step);
         // A cell's point is left out when an object covers it or the pixel
         // a cell away in any of the four directions (objects move; their
@@ -456,13 +491,6 @@ impl NewcomerCheck {
                             .any(|m| m[py as usize * width + px as usize])
                 })
         };
-        // Half resolution is precise enough for residuals of several
-        // pixels, and a flat or occluded point gives up sooner.
-        let lk = LkParams {
-            finest_level: 1.min(prev.levels.len() - 1),
-            iterations: lk.iterations.min(6),
-            ..lk
-        };
         let tensor = StructureTensor::new(&prev.levels[lk.finest_level]);
         let scale = 1 << lk.finest_level;
         let min_score = self.params.min_corner_score;
@@ -479,10 +507,25 @@ impl NewcomerCheck {
                 }
             }
         }
+        (cells, points)
+    }
+
+    /// The points' image motion from `prev` to `cur`, normalised, for
+    /// those tracked onto measured depth.
+    fn flows(
+        &self,
+        prev: &Pyramid,
+        cur: &Pyramid,
+        cells: &[(usize, usize)],
+        points: &[(f32, f32)],
+        depth: DepthImage,
+        lk: LkParams,
+    ) -> Vec<Flow> {
+        let (width, height) = (prev.levels[0].width, prev.levels[0].height);
         let guess = self.flow_guess;
         // No forward-backward check (it would double the cost): a point
         // LK gets wrong is one outlier, and a newcomer takes a group.
-        let fwd = track(prev, cur, &points, guess, lk);
+        let fwd = track(prev, cur, points, guess, lk);
         let mut flows = Vec::new();
         for (i, there) in fwd.into_iter().enumerate() {
             let Some((tx, ty)) = there else {
@@ -509,15 +552,12 @@ impl NewcomerCheck {
                 inverse_depth,
             });
         }
-        if let Some(median) = median_flow(&flows, &self.camera) {
-            self.flow_guess = median;
-            self.unseen_shift.0 += median.0;
-            self.unseen_shift.1 += median.1;
-        }
-        // Too little background to say what the camera did.
-        if flows.len() < 24 {
-            return None;
-        }
+        flows
+    }
+
+    /// The camera's motion most of the flows agree on; None when too few
+    /// agree (motion blur, a view filled by movers).
+    fn camera_motion(&self, flows: &[Flow]) -> Option<Motion> {
         let camera = self.camera;
         let inlier = self.params.inlier_px;
         let search = Ransac {
@@ -527,7 +567,7 @@ impl NewcomerCheck {
         };
         let (_, inliers) = search.run(
             flows.len(),
-            |s| fit_motion(&flows, s),
+            |s| fit_motion(flows, s),
             |m, i| flows[i].residual_px(m, &camera) <= inlier,
         )?;
         // Enough of the points must agree on a motion, else this frame says
@@ -535,17 +575,29 @@ impl NewcomerCheck {
         if (inliers.len() as f64) < self.params.min_agreement * flows.len() as f64 {
             return None;
         }
-        let motion = fit_motion(&flows, &inliers)?;
+        fit_motion(flows, &inliers)
+    }
+
+    /// The groups of connected cells whose flow the camera's `motion` does
+    /// not explain, large and coherent enough to be a mover.
+    fn moving_groups(
+        &self,
+        flows: &[Flow],
+        motion: &Motion,
+        step: usize,
+        (cols, rows): (usize, usize),
+    ) -> Vec<Newcomer> {
+        let camera = self.camera;
         let mut mover = vec![false; cols * rows];
         let mut residual = vec![(0.0, 0.0); cols * rows];
-        for f in &flows {
+        for f in flows {
             let limit = self
                 .params
                 .min_residual_px
-                .max(self.params.relative_residual * f.predicted_px(&motion, &camera));
-            if f.residual_px(&motion, &camera) > limit {
+                .max(self.params.relative_residual * f.predicted_px(motion, &camera));
+            if f.residual_px(motion, &camera) > limit {
                 mover[f.cell.1 * cols + f.cell.0] = true;
-                residual[f.cell.1 * cols + f.cell.0] = f.residual(&motion, &camera);
+                residual[f.cell.1 * cols + f.cell.0] = f.residual(motion, &camera);
             }
         }
         let coherence = |group: &[(usize, usize)]| {
@@ -558,7 +610,7 @@ impl NewcomerCheck {
             }
             (sx * sx + sy * sy).sqrt() / length.max(1e-9)
         };
-        let found = connected_groups(&mover, cols, rows)
+        connected_groups(&mover, cols, rows)
             .into_iter()
             .filter(|g| {
                 g.len() >= self.params.min_cells && coherence(g) >= self.params.min_coherence
@@ -577,8 +629,7 @@ impl NewcomerCheck {
                     why: Why::Moving,
                 }
             })
-            .collect();
-        Some(found)
+            .collect()
     }
 }
 

@@ -23,7 +23,8 @@ use std::path::Path;
 
 use anyhow::{bail, Context, Result};
 use datasets::decode::decode_depth_into;
-use datasets::source::{tum_folder, MaskList};
+use datasets::source::{tum_folder, FrameEntry, MaskList};
+use image::{GrayImage, RgbImage};
 use onnx_runtime::init_runtime;
 use pipeline::config::PipelineConfig;
 use pipeline::progress::Progress;
@@ -370,22 +371,11 @@ pub fn evaluate(
             pipeline::config::ClockMode::Lockstep,
         ));
     }
-    let mut entries = Entries::default();
-    let mut early_segments = 0;
+    let mut tally = Tally::new(keyframe_every);
     // Frames since the last segmented one, and whether the propagator asked.
     let (mut since_segment, mut requested) = (0usize, false);
     let mut depth_buf = Vec::new();
-
-    let mut seg_iou = Vec::new();
-    let mut prop_iou = Vec::new();
-    let mut prompted_iou = Vec::new();
-    let mut by_offset = vec![Vec::new(); keyframe_every - 1];
-    let (mut seg_ms, mut prop_ms) = (Vec::new(), Vec::new());
-    let mut prompted_ids: Vec<u8> = Vec::new();
-    let mut found_ids: Vec<u8> = Vec::new();
-    let mut found_iou = Vec::new();
     let ignore = IgnoreRegions::open(dataset)?;
-    let (mut seg_cause, mut prop_cause) = (ByCause::default(), ByCause::default());
     let occlusion = Occlusion::open(dataset)?;
     let mut saved = save.map(SavedMasks::create).transpose()?;
     // The frame before's labels: the segmenter keeps a weak detection that
@@ -393,23 +383,12 @@ pub fn evaluate(
     let mut previous_labels: Vec<u8> = Vec::new();
     let mut progress = Progress::new("masks-eval", frames.len() as u64);
     for (k, frame) in frames.iter().enumerate() {
-        let rgb = image::open(&frame.rgb)
-            .with_context(|| frame.rgb.display().to_string())?
-            .to_rgb8();
+        let (rgb, gt) = frame_and_truth(frame, &truth)?;
         let (w, h) = (rgb.width() as usize, rgb.height() as usize);
-        let gt = truth.load_at(frame.timestamp).map_err(anyhow::Error::msg)?;
-        if (gt.width() as usize, gt.height() as usize) != (w, h) {
-            bail!(
-                "mask of frame {:.6} is {}x{}, the frame {w}x{h}",
-                frame.timestamp,
-                gt.width(),
-                gt.height()
-            );
-        }
         let mut labels = vec![0u8; w * h];
         let scheduled = k == 0 || since_segment + 1 >= keyframe_every;
         if requested && !scheduled {
-            early_segments += 1;
+            tally.early_segments += 1;
         }
         let offset = if scheduled || requested {
             0
@@ -433,50 +412,26 @@ pub fn evaluate(
             }
             _ => None,
         };
+        let t = std::time::Instant::now();
         if offset == 0 {
-            let t = std::time::Instant::now();
             let previous = (k > 0).then_some(&previous_labels[..]);
             let instances =
                 segmenter.segment_rgbd(rgb.as_raw(), depth, previous, w, h, &mut labels)?;
-            seg_ms.push(t.elapsed().as_secs_f64() * 1e3);
+            tally.seg_ms.push(t.elapsed().as_secs_f64() * 1e3);
             propagator.prompt_with(rgb.as_raw(), w, h, &labels, &instances);
         } else {
-            let t = std::time::Instant::now();
             propagator.propagate_rgbd(rgb.as_raw(), depth, w, h, &mut labels);
-            prop_ms.push(t.elapsed().as_secs_f64() * 1e3);
+            tally.prop_ms.push(t.elapsed().as_secs_f64() * 1e3);
             requested = propagator.take_newcomer().is_some();
         }
         let ignored = ignore.at(frame.timestamp, w, h)?;
         let scores = instance_ious(&labels, gt.as_raw(), ignored.as_deref(), w, min_px);
-        entries.observe(k, &scores);
+        tally.entries.observe(k, &scores);
         if let Some(saved) = saved.as_mut() {
             saved.write(k, offset, w, h, &labels, &scores)?;
         }
-        if offset == 0 {
-            prompted_ids = scores.iter().map(|s| s.id).collect();
-            found_ids = scores
-                .iter()
-                .filter(|s| s.iou >= FOUND_IOU)
-                .map(|s| s.id)
-                .collect();
-            seg_iou.extend(scores.iter().map(|s| s.iou));
-            for s in &scores {
-                seg_cause.add(s, false, occlusion.occluded(frame.timestamp, s.id), w * h);
-            }
-        } else {
-            for s in scores {
-                let occluded = occlusion.occluded(frame.timestamp, s.id);
-                prop_cause.add(&s, !prompted_ids.contains(&s.id), occluded, w * h);
-                prop_iou.push(s.iou);
-                by_offset[offset - 1].push(s.iou);
-                if prompted_ids.contains(&s.id) {
-                    prompted_iou.push(s.iou);
-                }
-                if found_ids.contains(&s.id) {
-                    found_iou.push(s.iou);
-                }
-            }
-        }
+        let occluded = |id| occlusion.occluded(frame.timestamp, id);
+        tally.add(offset, scores, occluded, w * h);
         previous_labels = labels;
         progress.inc();
     }
@@ -484,27 +439,132 @@ pub fn evaluate(
     if let Some(saved) = saved.as_mut() {
         saved.finish()?;
     }
-    seg_ms.sort_by(f64::total_cmp);
-    prop_ms.sort_by(f64::total_cmp);
-    Ok(MaskScores {
-        frames: frames.len(),
-        keyframe_every,
-        min_px,
-        segmenter_iou: mean(&seg_iou),
-        segmenter_samples: seg_iou.len(),
-        propagator_iou: mean(&prop_iou),
-        propagator_samples: prop_iou.len(),
-        propagator_iou_by_offset: by_offset.iter().map(|v| mean(v)).collect(),
-        propagator_iou_prompted: mean(&prompted_iou),
-        propagator_iou_found: mean(&found_iou),
-        segmenter_by_cause: seg_cause,
-        propagator_by_cause: prop_cause,
-        ignore_regions: ignore.any(),
-        early_segments,
-        entries: entries.finish(),
-        segmenter_ms_p50: pipeline::stats::percentile(&seg_ms, 50.0),
-        propagator_ms_p50: pipeline::stats::percentile(&prop_ms, 50.0),
-    })
+    Ok(tally.finish(frames.len(), keyframe_every, min_px, ignore.any()))
+}
+
+/// A frame's colour image and its ground-truth labels, of the same size.
+fn frame_and_truth(frame: &FrameEntry, truth: &MaskList) -> Result<(RgbImage, GrayImage)> {
+    let rgb = image::open(&frame.rgb)
+        .with_context(|| frame.rgb.display().to_string())?
+        .to_rgb8();
+    let (w, h) = (rgb.width() as usize, rgb.height() as usize);
+    let gt = truth.load_at(frame.timestamp).map_err(anyhow::Error::msg)?;
+    if (gt.width() as usize, gt.height() as usize) != (w, h) {
+        bail!(
+            "mask of frame {:.6} is {}x{}, the frame {w}x{h}",
+            frame.timestamp,
+            gt.width(),
+            gt.height()
+        );
+    }
+    Ok((rgb, gt))
+}
+
+/// What masks-eval gathers frame by frame.
+struct Tally {
+    entries: Entries,
+    early_segments: usize,
+    seg_iou: Vec<f64>,
+    prop_iou: Vec<f64>,
+    /// Propagated IoU of the people the last segmented frame was prompted
+    /// with, and of those it found (IoU >= [`FOUND_IOU`]).
+    prompted_iou: Vec<f64>,
+    found_iou: Vec<f64>,
+    /// Propagated IoU by frames since the segmented one (1, 2, ...).
+    by_offset: Vec<Vec<f64>>,
+    seg_ms: Vec<f64>,
+    prop_ms: Vec<f64>,
+    prompted_ids: Vec<u8>,
+    found_ids: Vec<u8>,
+    seg_cause: ByCause,
+    prop_cause: ByCause,
+}
+
+impl Tally {
+    fn new(keyframe_every: usize) -> Self {
+        Self {
+            entries: Entries::default(),
+            early_segments: 0,
+            seg_iou: Vec::new(),
+            prop_iou: Vec::new(),
+            prompted_iou: Vec::new(),
+            found_iou: Vec::new(),
+            by_offset: vec![Vec::new(); keyframe_every - 1],
+            seg_ms: Vec::new(),
+            prop_ms: Vec::new(),
+            prompted_ids: Vec::new(),
+            found_ids: Vec::new(),
+            seg_cause: ByCause::default(),
+            prop_cause: ByCause::default(),
+        }
+    }
+
+    /// The scores of a frame `offset` frames after the last segmented one
+    /// (0: segmented itself); `occluded(id)` says whether that person is
+    /// occluded there.
+    fn add(
+        &mut self,
+        offset: usize,
+        scores: Vec<InstanceIou>,
+        occluded: impl Fn(u8) -> bool,
+        image_px: usize,
+    ) {
+        if offset == 0 {
+            self.prompted_ids = scores.iter().map(|s| s.id).collect();
+            self.found_ids = scores
+                .iter()
+                .filter(|s| s.iou >= FOUND_IOU)
+                .map(|s| s.id)
+                .collect();
+            self.seg_iou.extend(scores.iter().map(|s| s.iou));
+            for s in &scores {
+                self.seg_cause.add(s, false, occluded(s.id), image_px);
+            }
+            return;
+        }
+        for s in scores {
+            let entered = !self.prompted_ids.contains(&s.id);
+            self.prop_cause.add(&s, entered, occluded(s.id), image_px);
+            self.prop_iou.push(s.iou);
+            self.by_offset[offset - 1].push(s.iou);
+            if self.prompted_ids.contains(&s.id) {
+                self.prompted_iou.push(s.iou);
+            }
+            if self.found_ids.contains(&s.id) {
+                self.found_iou.push(s.iou);
+            }
+        }
+    }
+
+    fn finish(
+        mut self,
+        frames: usize,
+        keyframe_every: usize,
+        min_px: usize,
+        ignore_regions: bool,
+    ) -> MaskScores {
+        self.seg_ms.sort_by(f64::total_cmp);
+        self.prop_ms.sort_by(f64::total_cmp);
+        MaskScores {
+            frames,
+            keyframe_every,
+            min_px,
+            segmenter_iou: mean(&self.seg_iou),
+            segmenter_samples: self.seg_iou.len(),
+            propagator_iou: mean(&self.prop_iou),
+            propagator_samples: self.prop_iou.len(),
+            propagator_iou_by_offset: self.by_offset.iter().map(|v| mean(v)).collect(),
+            propagator_iou_prompted: mean(&self.prompted_iou),
+            propagator_iou_found: mean(&self.found_iou),
+            segmenter_by_cause: self.seg_cause,
+            propagator_by_cause: self.prop_cause,
+            ignore_regions,
+            early_segments: self.early_segments,
+            entries: self.entries.finish(),
+            segmenter_ms_p50: pipeline::stats::percentile(&self.seg_ms, 50.0),
+            propagator_ms_p50: pipeline::stats::percentile(&self.prop_ms, 50.0),
+        }
+    }
 }
 
 /// `masks-eval --save`: predicted labels per frame and a score table.

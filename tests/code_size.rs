@@ -14,10 +14,9 @@ const MAX_FN_LINES: usize = 120;
 const LARGE_FILES: [(&str, usize); 1] = [("slam-core/src/system.rs", 950)];
 
 /// Functions over the limit today: (path under services/, name, lines at most).
-const LONG_FUNCTIONS: [(&str, &str, usize); 3] = [
+const LONG_FUNCTIONS: [(&str, &str, usize); 2] = [
     ("slam-core/src/optimizer/local_ba.rs", "optimise", 185),
     ("slam-core/src/system.rs", "track_with", 126),
-    ("scenes/src/synth.rs", "render", 130),
 ];
 
 fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {

@@ -16,7 +16,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
 
 use datasets::source::{tum_folder, FrameEntry};
-use image::{ImageBuffer, Luma};
+use image::{ImageBuffer, Luma, RgbImage};
 use nalgebra::Isometry3;
 use pipeline::progress::Progress;
 use serde::Serialize;
@@ -262,6 +262,9 @@ pub fn for_each_frame<T: Send>(
         .collect())
 }
 
+/// A 16-bit depth image as TUM stores it.
+type Depth16 = ImageBuffer<Luma<u16>, Vec<u16>>;
+
 struct FrameJob<'a> {
     frame: &'a FrameEntry,
     pose: &'a Isometry3<f64>,
@@ -279,58 +282,9 @@ struct FrameJob<'a> {
 impl FrameJob<'_> {
     fn render(&self, output: &Path) -> Result<FrameRecord, SynthError> {
         let rgb_path = &self.frame.rgb;
-        let depth_path = self
-            .frame
-            .depth
-            .as_ref()
-            .ok_or_else(|| SynthError::NoDepth {
-                path: rgb_path.clone(),
-            })?;
-        let bad = |path: &Path, message: String| SynthError::BadImage {
-            path: path.to_path_buf(),
-            message,
-        };
-        let mut rgb = image::open(rgb_path)
-            .map_err(|e| bad(rgb_path, e.to_string()))?
-            .to_rgb8();
-        let depth_img = image::open(depth_path).map_err(|e| bad(depth_path, e.to_string()))?;
-        let mut depth = match depth_img {
-            image::DynamicImage::ImageLuma16(d) => d,
-            other => {
-                return Err(bad(
-                    depth_path,
-                    format!("depth must be 16-bit grey, found {:?}", other.color()),
-                ))
-            }
-        };
+        let (mut rgb, mut depth, depth_path) = self.load()?;
         let (w, h) = (rgb.width() as usize, rgb.height() as usize);
-        if (depth.width() as usize, depth.height() as usize) != (w, h) {
-            return Err(bad(
-                depth_path,
-                format!(
-                    "{}x{} does not match the colour image's {w}x{h}",
-                    depth.width(),
-                    depth.height()
-                ),
-            ));
-        }
-        let placements: Vec<Placement> = self
-            .walkers
-            .iter()
-            .filter_map(|walker| {
-                let s = walker.state(self.stage, self.t);
-                place(
-                    walker.id,
-                    walker.sprite,
-                    s.leftwards,
-                    &s.centre,
-                    &self.stage.up,
-                    walker.height_m,
-                    self.pose,
-                    self.camera,
-                )
-            })
-            .collect();
+        let placements = self.placements();
         let mut labels = vec![0u8; w * h];
         let visible = {
             let mut canvas = Canvas {
@@ -354,17 +308,7 @@ impl FrameJob<'_> {
             format!("depth/{}", name(depth_path)),
         );
         // People stay in masks/, boxes go to movers/ (same ids).
-        let mut movers = vec![0u8; w * h];
-        for (label, mover) in labels.iter_mut().zip(movers.iter_mut()) {
-            if *label != 0
-                && self
-                    .walkers
-                    .iter()
-                    .any(|wk| wk.id == *label && wk.kind == Kind::Box)
-            {
-                *mover = std::mem::take(label);
-            }
-        }
+        let movers = self.take_boxes(&mut labels);
         let mask_rel = format!("masks/{}", name(rgb_path));
         let save_err = |p: PathBuf| {
             move |e: image::ImageError| SynthError::Io {
@@ -406,6 +350,84 @@ impl FrameJob<'_> {
                 })
                 .collect(),
         })
+    }
+    /// The frame's colour and depth images (16-bit, of the same size), and
+    /// the depth image's path.
+    fn load(&self) -> Result<(RgbImage, Depth16, &Path), SynthError> {
+        let rgb_path = &self.frame.rgb;
+        let depth_path = self
+            .frame
+            .depth
+            .as_ref()
+            .ok_or_else(|| SynthError::NoDepth {
+                path: rgb_path.clone(),
+            })?;
+        let bad = |path: &Path, message: String| SynthError::BadImage {
+            path: path.to_path_buf(),
+            message,
+        };
+        let rgb = image::open(rgb_path)
+            .map_err(|e| bad(rgb_path, e.to_string()))?
+            .to_rgb8();
+        let depth_img = image::open(depth_path).map_err(|e| bad(depth_path, e.to_string()))?;
+        let depth = match depth_img {
+            image::DynamicImage::ImageLuma16(d) => d,
+            other => {
+                return Err(bad(
+                    depth_path,
+                    format!("depth must be 16-bit grey, found {:?}", other.color()),
+                ))
+            }
+        };
+        let (w, h) = (rgb.width() as usize, rgb.height() as usize);
+        if (depth.width() as usize, depth.height() as usize) != (w, h) {
+            return Err(bad(
+                depth_path,
+                format!(
+                    "{}x{} does not match the colour image's {w}x{h}",
+                    depth.width(),
+                    depth.height()
+                ),
+            ));
+        }
+        Ok((rgb, depth, depth_path))
+    }
+
+    /// Where each walker is in this frame's image (those in view).
+    fn placements(&self) -> Vec<Placement> {
+        self.walkers
+            .iter()
+            .filter_map(|walker| {
+                let s = walker.state(self.stage, self.t);
+                place(
+                    walker.id,
+                    walker.sprite,
+                    s.leftwards,
+                    &s.centre,
+                    &self.stage.up,
+                    walker.height_m,
+                    self.pose,
+                    self.camera,
+                )
+            })
+            .collect()
+    }
+
+    /// Moves the boxes' labels out of `labels` into a label image of their
+    /// own (`movers/`; people stay in `masks/`, ids unchanged).
+    fn take_boxes(&self, labels: &mut [u8]) -> Vec<u8> {
+        let mut movers = vec![0u8; labels.len()];
+        for (label, mover) in labels.iter_mut().zip(movers.iter_mut()) {
+            if *label != 0
+                && self
+                    .walkers
+                    .iter()
+                    .any(|wk| wk.id == *label && wk.kind == Kind::Box)
+            {
+                *mover = std::mem::take(label);
+            }
+        }
+        movers
     }
 }
 

@@ -14,8 +14,7 @@ const MAX_FN_LINES: usize = 120;
 const LARGE_FILES: [(&str, usize); 1] = [("slam-core/src/system.rs", 950)];
 
 /// Functions over the limit today: (path under services/, name, lines at most).
-const LONG_FUNCTIONS: [(&str, &str, usize); 2] = [
-    ("slam-core/src/optimizer/local_ba.rs", "optimise", 185),
+const LONG_FUNCTIONS: [(&str, &str, usize); 1] = [
     ("slam-core/src/system.rs", "track_with", 126),
 ];
 

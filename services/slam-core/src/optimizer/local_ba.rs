@@ -98,7 +98,76 @@ fn optimise(
             free += 1;
         }
     }
-    let cost = |poses: &[Isometry3<f64>], points: &[Vector3<f64>]| -> f64 {
+    let problem = Problem {
+        cam,
+        obs,
+        use_,
+        robust,
+        slot,
+        free,
+    };
+    let mut current = problem.cost(poses, points);
+    let mut lambda = 1e-4;
+    for _ in 0..iterations {
+        let normal = problem.normal_equations(poses, points);
+        let mut improved = false;
+        for _ in 0..5 {
+            let Some((dp, inv_mm)) = problem.solve(&normal, lambda) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let (cand_poses, cand_points) = problem.step(poses, points, &normal, &dp, &inv_mm);
+            let c = problem.cost(&cand_poses, &cand_points);
+            if c < current {
+                let change = dp.norm();
+                poses.copy_from_slice(&cand_poses);
+                points.copy_from_slice(&cand_points);
+                improved = (current - c) > 1e-9 * current.max(1.0) || change > 1e-9;
+                current = c;
+                lambda = (lambda * 0.3).max(1e-7);
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+}
+
+/// The normal equations of one Levenberg-Marquardt iteration, in blocks.
+struct Normal {
+    /// Per free pose (by slot): its 6x6 block and gradient.
+    h_pp: Vec<nalgebra::Matrix6<f64>>,
+    g_p: Vec<Vector6<f64>>,
+    /// Per point: its 3x3 block and gradient.
+    h_mm: Vec<Matrix3<f64>>,
+    g_m: Vec<Vector3<f64>>,
+    /// (free pose slot, point, H_pm block) per observation, grouped by
+    /// point for the Schur complement.
+    h_pm: Vec<(usize, usize, Matrix3x6<f64>)>,
+}
+
+/// The free poses' step, and each point block's damped inverse (None:
+/// singular, the point stays).
+type Solution = (DVector<f64>, Vec<Option<Matrix3<f64>>>);
+
+/// A bundle adjustment: the observations used, the kernel, and where each
+/// free pose sits in the reduced system.
+struct Problem<'a> {
+    cam: &'a Camera,
+    obs: &'a [BaObservation],
+    use_: &'a [bool],
+    robust: bool,
+    /// Per pose: its slot among the free ones, `usize::MAX` when fixed.
+    slot: Vec<usize>,
+    free: usize,
+}
+
+impl Problem<'_> {
+    /// The (robust) cost of the used observations.
+    fn cost(&self, poses: &[Isometry3<f64>], points: &[Vector3<f64>]) -> f64 {
+        let (cam, obs, use_, robust) = (self.cam, self.obs, self.use_, self.robust);
         obs.iter()
             .zip(use_)
             .filter(|(_, &u)| u)
@@ -117,11 +186,18 @@ fn optimise(
                 },
             )
             .sum()
-    };
-    let mut current = cost(poses, points);
-    let mut lambda = 1e-4;
-    for _ in 0..iterations {
-        // Normal-equation blocks.
+    }
+
+    /// The normal-equation blocks at `poses` and `points`.
+    fn normal_equations(&self, poses: &[Isometry3<f64>], points: &[Vector3<f64>]) -> Normal {
+        let (cam, obs, use_, robust, slot, free) = (
+            self.cam,
+            self.obs,
+            self.use_,
+            self.robust,
+            &self.slot,
+            self.free,
+        );
         let mut h_pp = vec![nalgebra::Matrix6::<f64>::zeros(); free];
         let mut g_p = vec![Vector6::<f64>::zeros(); free];
         let mut h_mm = vec![Matrix3::<f64>::zeros(); points.len()];
@@ -165,103 +241,115 @@ fn optimise(
         // Group the pose-point couplings by point for the Schur complement.
         h_pm.sort_by_key(|&(_, m, _)| m);
 
-        let mut improved = false;
-        for _ in 0..5 {
-            let damp = |m: &Matrix3<f64>| {
-                let mut d = *m;
-                for i in 0..3 {
-                    d[(i, i)] += lambda * m[(i, i)].max(1e-9);
-                }
-                d
-            };
-            let inv_mm: Vec<Option<Matrix3<f64>>> =
-                h_mm.iter().map(|m| damp(m).try_inverse()).collect();
-            let mut s = DMatrix::<f64>::zeros(6 * free, 6 * free);
-            let mut b = DVector::<f64>::zeros(6 * free);
-            for (k, (h, g)) in h_pp.iter().zip(&g_p).enumerate() {
-                let mut hd = *h;
-                for i in 0..6 {
-                    hd[(i, i)] += lambda * h[(i, i)].max(1e-9);
-                }
-                s.view_mut((6 * k, 6 * k), (6, 6)).add_assign(&hd);
-                b.rows_mut(6 * k, 6).add_assign(g);
-            }
-            let mut start = 0;
-            while start < h_pm.len() {
-                let m = h_pm[start].1;
-                let mut end = start;
-                while end < h_pm.len() && h_pm[end].1 == m {
-                    end += 1;
-                }
-                if let Some(inv) = inv_mm[m] {
-                    let group = &h_pm[start..end];
-                    for &(a, _, pa) in group {
-                        // pa: 3x6 (point rows, pose cols) = H_mp for pose a.
-                        let left = pa.transpose() * inv; // 6x3
-                        b.rows_mut(6 * a, 6).sub_assign(&(left * g_m[m]));
-                        for &(c, _, pc) in group {
-                            s.view_mut((6 * a, 6 * c), (6, 6)).sub_assign(&(left * pc));
-                        }
-                    }
-                }
-                start = end;
-            }
-            let dp = if free > 0 {
-                match s.clone().cholesky() {
-                    Some(c) => c.solve(&b),
-                    None => {
-                        lambda *= 10.0;
-                        continue;
-                    }
-                }
-            } else {
-                DVector::zeros(0)
-            };
-            if !dp.iter().all(|v| v.is_finite()) {
-                lambda *= 10.0;
-                continue;
-            }
-            // Back-substitution for the points.
-            let mut dm: Vec<Vector3<f64>> = g_m.clone();
-            for &(a, m, pa) in &h_pm {
-                let d: Vector6<f64> = dp.fixed_rows::<6>(6 * a).into_owned();
-                dm[m] -= pa * d;
-            }
-            let mut cand_poses = poses.to_vec();
-            for (i, pose) in cand_poses.iter_mut().enumerate() {
-                if slot[i] != usize::MAX {
-                    let d: Vector6<f64> = dp.fixed_rows::<6>(6 * slot[i]).into_owned();
-                    let step = Isometry3::from_parts(
-                        Translation3::from(Vector3::new(d[3], d[4], d[5])),
-                        UnitQuaternion::from_scaled_axis(Vector3::new(d[0], d[1], d[2])),
-                    );
-                    *pose = renormalized(&(step * *pose));
-                }
-            }
-            let mut cand_points = points.to_vec();
-            for (m, p) in cand_points.iter_mut().enumerate() {
-                if let Some(inv) = inv_mm[m] {
-                    let d = inv * dm[m];
-                    if d.iter().all(|v| v.is_finite()) {
-                        *p += d;
-                    }
-                }
-            }
-            let c = cost(&cand_poses, &cand_points);
-            if c < current {
-                let change = dp.norm();
-                poses.copy_from_slice(&cand_poses);
-                points.copy_from_slice(&cand_points);
-                improved = (current - c) > 1e-9 * current.max(1.0) || change > 1e-9;
-                current = c;
-                lambda = (lambda * 0.3).max(1e-7);
-                break;
-            }
-            lambda *= 10.0;
+        Normal {
+            h_pp,
+            g_p,
+            h_mm,
+            g_m,
+            h_pm,
         }
-        if !improved {
-            break;
+    }
+
+    /// The free poses' step with damping `lambda` (points eliminated by the
+    /// Schur complement), and each point block's damped inverse; None when
+    /// the reduced system cannot be solved.
+    fn solve(&self, normal: &Normal, lambda: f64) -> Option<Solution> {
+        let free = self.free;
+        let Normal {
+            h_pp,
+            g_p,
+            h_mm,
+            g_m,
+            h_pm,
+        } = normal;
+        let damp = |m: &Matrix3<f64>| {
+            let mut d = *m;
+            for i in 0..3 {
+                d[(i, i)] += lambda * m[(i, i)].max(1e-9);
+            }
+            d
+        };
+        let inv_mm: Vec<Option<Matrix3<f64>>> =
+            h_mm.iter().map(|m| damp(m).try_inverse()).collect();
+        let mut s = DMatrix::<f64>::zeros(6 * free, 6 * free);
+        let mut b = DVector::<f64>::zeros(6 * free);
+        for (k, (h, g)) in h_pp.iter().zip(g_p).enumerate() {
+            let mut hd = *h;
+            for i in 0..6 {
+                hd[(i, i)] += lambda * h[(i, i)].max(1e-9);
+            }
+            s.view_mut((6 * k, 6 * k), (6, 6)).add_assign(&hd);
+            b.rows_mut(6 * k, 6).add_assign(g);
         }
+        let mut start = 0;
+        while start < h_pm.len() {
+            let m = h_pm[start].1;
+            let mut end = start;
+            while end < h_pm.len() && h_pm[end].1 == m {
+                end += 1;
+            }
+            if let Some(inv) = inv_mm[m] {
+                let group = &h_pm[start..end];
+                for &(a, _, pa) in group {
+                    // pa: 3x6 (point rows, pose cols) = H_mp for pose a.
+                    let left = pa.transpose() * inv; // 6x3
+                    b.rows_mut(6 * a, 6).sub_assign(&(left * g_m[m]));
+                    for &(c, _, pc) in group {
+                        s.view_mut((6 * a, 6 * c), (6, 6)).sub_assign(&(left * pc));
+                    }
+                }
+            }
+            start = end;
+        }
+        let dp = if free > 0 {
+            s.clone().cholesky()?.solve(&b)
+        } else {
+            DVector::zeros(0)
+        };
+        if !dp.iter().all(|v| v.is_finite()) {
+            return None;
+        }
+        Some((dp, inv_mm))
+    }
+
+    /// The candidate poses and points after step `dp` (the points'
+    /// back-substituted).
+    fn step(
+        &self,
+        poses: &[Isometry3<f64>],
+        points: &[Vector3<f64>],
+        normal: &Normal,
+        dp: &DVector<f64>,
+        inv_mm: &[Option<Matrix3<f64>>],
+    ) -> (Vec<Isometry3<f64>>, Vec<Vector3<f64>>) {
+        let (slot, g_m, h_pm) = (&self.slot, &normal.g_m, &normal.h_pm);
+        // Back-substitution for the points.
+        let mut dm: Vec<Vector3<f64>> = g_m.clone();
+        for &(a, m, pa) in h_pm {
+            let d: Vector6<f64> = dp.fixed_rows::<6>(6 * a).into_owned();
+            dm[m] -= pa * d;
+        }
+        let mut cand_poses = poses.to_vec();
+        for (i, pose) in cand_poses.iter_mut().enumerate() {
+            if slot[i] != usize::MAX {
+                let d: Vector6<f64> = dp.fixed_rows::<6>(6 * slot[i]).into_owned();
+                let step = Isometry3::from_parts(
+                    Translation3::from(Vector3::new(d[3], d[4], d[5])),
+                    UnitQuaternion::from_scaled_axis(Vector3::new(d[0], d[1], d[2])),
+                );
+                *pose = renormalized(&(step * *pose));
+            }
+        }
+        let mut cand_points = points.to_vec();
+        for (m, p) in cand_points.iter_mut().enumerate() {
+            if let Some(inv) = inv_mm[m] {
+                let d = inv * dm[m];
+                if d.iter().all(|v| v.is_finite()) {
+                    *p += d;
+                }
+            }
+        }
+        (cand_poses, cand_points)
     }
 }
 

@@ -5,7 +5,8 @@
 //! ([`crate::local_mapping`]) on its own thread while the next frame's
 //! features are extracted. Maps are saved and loaded with
 //! [`crate::io::map_file`]; a loaded map is tracked in, in its own world
-//! frame, after relocalisation. Not here yet (README): loop closing.
+//! frame, after relocalisation. Loop closing ([`crate::loop_closing`])
+//! runs on its own thread behind local mapping when it is on.
 
 use std::sync::Arc;
 
@@ -30,6 +31,8 @@ use crate::place_recognition::Vocabulary;
 use crate::tracking::motion_check::{MotionCheck, MotionCheckParams, MovingRegion};
 use crate::tracking::{Tracked, Tracking, TrackingState};
 
+mod keyframes;
+mod mapping;
 mod per_frame;
 
 /// Undistorted keypoint pixels and depths before the rolling-shutter
@@ -477,13 +480,7 @@ impl System {
             ..Default::default()
         };
         if keyframe_inserted {
-            self.keyframes_inserted += 1;
-            if started {
-                if let Some(c) = &self.checkpointer {
-                    c.write_now(&self.map);
-                }
-            }
-            self.start_mapping(self.map.keyframes.len() - 1);
+            self.keyframe_inserted(started);
         }
         counts.mapping_us = (self.mapping_ms * 1e3) as u32;
         // The keyframe waiting for its masks goes in without them once
@@ -493,32 +490,25 @@ impl System {
             && (weakened || !tracked.state.is_tracked())
             && self.complete_keyframe(None);
         let keyframe_pending = decision == Decision::Pending;
+        let (state, pose_cw, inliers) = (tracked.state, tracked.pose_cw, tracked.inliers);
         if keyframe_pending {
             self.pending_keyframe = Some(PendingKeyframe {
                 frame,
-                pose_cw: tracked.pose_cw,
+                pose_cw,
                 matched: tracked.matched,
-                inliers: tracked.inliers,
+                inliers,
                 timestamp: input.timestamp,
                 frames_counted: self.tracking.frames_since_keyframe(),
             });
         }
         let next_needs_keyframe = !keyframe_inserted
             && self.pending_keyframe.is_none()
-            && if self.localize_only {
-                // No keyframes come: the hint asks for fresh masks at the
-                // keyframe cadence (and when lost).
-                self.tracking.refresh_due()
-            } else {
-                // The rule picked a frame that could not be one
-                // (`NotThisFrame`): the hint asks for the next.
-                decision == Decision::Wanted || self.tracking.next_needs_keyframe(tracked.inliers)
-            };
+            && self.hint_keyframe(decision, inliers);
         self.keyframe_hinted = next_needs_keyframe;
-        let pose_for_output = self.tracking.last_pose().unwrap_or(tracked.pose_cw);
+        let pose_for_output = self.tracking.last_pose().unwrap_or(pose_cw);
         FrameResult {
             pose_wc: pose_for_output.inverse(),
-            state: tracked.state,
+            state,
             keyframe_inserted,
             keyframe_pending,
             waiting_keyframe_inserted,
@@ -577,122 +567,6 @@ impl System {
         }
     }
 
-    /// Moves the motion model on with a tracked frame and inserts it as a
-    /// keyframe when ORB-SLAM2's rule asks (never in localization mode,
-    /// not while another keyframe is pending; `timing` may defer it); an
-    /// untracked frame marks tracking lost.
-    fn decide_keyframe(
-        &mut self,
-        tracked: &Tracked,
-        frame: &Frame,
-        timestamp: f64,
-        started: bool,
-        timing: KeyframeTiming,
-    ) -> Decision {
-        if !tracked.state.is_tracked() {
-            if !self.map.keyframes.is_empty() {
-                self.tracking.mark_lost();
-            }
-            return Decision::None;
-        }
-        self.tracking.accept(tracked, timestamp);
-        self.tracking.remember_image(frame, &self.moving_regions);
-        if started {
-            return Decision::Inserted;
-        }
-        let wanted = !self.localize_only
-            && self.pending_keyframe.is_none()
-            && self.tracking.need_keyframe(tracked, frame, &self.map);
-        if wanted && timing == KeyframeTiming::Now {
-            self.tracking.insert_keyframe(
-                &mut self.map,
-                frame,
-                &tracked.pose_cw,
-                &tracked.matched,
-                tracked.inliers,
-            );
-            return Decision::Inserted;
-        }
-        self.tracking.count_frame();
-        match (wanted, timing) {
-            (true, KeyframeTiming::AfterBetterMasks) => Decision::Pending,
-            (true, KeyframeTiming::NotThisFrame) => Decision::Wanted,
-            _ => Decision::None,
-        }
-    }
-
-    /// Whether tracking has weakened ([`WEAKENED`]) with `tracked`.
-    fn weakened(&mut self, tracked: &Tracked) -> bool {
-        let reference = self
-            .pending_keyframe
-            .as_ref()
-            .map_or(self.tracking.reference_inliers(), |p| p.inliers);
-        let weak =
-            tracked.state.is_tracked() && (tracked.inliers as f64) < WEAKENED * reference as f64;
-        let weakened = weak && self.weak_before;
-        self.weak_before = weak;
-        weakened
-    }
-
-    /// Whether a keyframe waits for [`System::complete_keyframe`].
-    pub fn keyframe_pending(&self) -> bool {
-        self.pending_keyframe.is_some()
-    }
-
-    /// Inserts the pending keyframe, without its features inside `mask`
-    /// (its better masks: labels, non-zero dynamic, the frame's size;
-    /// `None`: they never came, it goes in as tracked). Its map points that
-    /// local mapping culled meanwhile are not observed. True when a
-    /// keyframe was inserted.
-    pub fn complete_keyframe(&mut self, mask: Option<&[u8]>) -> bool {
-        let Some(pending) = self.pending_keyframe.take() else {
-            return false;
-        };
-        self.settle();
-        let PendingKeyframe {
-            frame,
-            pose_cw,
-            matched,
-            inliers,
-            timestamp,
-            frames_counted,
-        } = pending;
-        let (frame, matched) = match mask.filter(|m| m.len() == frame.width * frame.height) {
-            Some(labels) => {
-                let mask = DynamicMask::new(
-                    labels,
-                    frame.width,
-                    frame.height,
-                    self.params.mask_dilation_px,
-                );
-                let (kept, index) = frame.without(|k| !mask.keeps(k.x, k.y));
-                let matched = index.iter().map(|&k| matched[k]).collect();
-                (kept, matched)
-            }
-            None => (frame, matched),
-        };
-        let matched: Vec<Option<usize>> = matched
-            .into_iter()
-            .map(|m| m.filter(|&p| self.map.points.get(p).is_some_and(|p| p.is_live())))
-            .collect();
-        let inliers = inliers.min(matched.iter().flatten().count());
-        // The frames tracked while it waited count towards the next
-        // keyframe: the cadence runs from the keyframe's own frame, as in
-        // lockstep, not from when its masks came (at 60 fps the segmenter
-        // takes 5-8 frames: real-time maps had 21 keyframes where lockstep
-        // has 33).
-        let waited = self
-            .tracking
-            .frames_since_keyframe()
-            .saturating_sub(frames_counted);
-        self.tracking
-            .insert_keyframe(&mut self.map, &frame, &pose_cw, &matched, inliers);
-        self.tracking.backdate_keyframe(waited, timestamp);
-        self.keyframes_inserted += 1;
-        self.start_mapping(self.map.keyframes.len() - 1);
-        true
-    }
-
     fn skipped(&self) -> FrameResult {
         FrameResult {
             pose_wc: self
@@ -712,21 +586,6 @@ impl System {
         }
     }
 
-    /// The map, once local mapping has given it back and loop closing has
-    /// finished.
-    pub fn map(&mut self) -> &Map {
-        self.finish_loops();
-        &self.map
-    }
-
-    /// Points local mapping triangulated and fused so far (once it has
-    /// given the map back).
-    pub fn mapping_counts(&mut self) -> MappingCounts {
-        self.settle();
-        self.mapped
-    }
-
-    /// Keyframes this system inserted (a loaded map's own not counted).
     /// The trajectory of the tracked frames as the map stands now
     /// (ORB-SLAM2's SaveTrajectoryTUM): each frame's pose relative to its
     /// reference keyframe, composed with that keyframe's current pose, so
@@ -790,6 +649,7 @@ impl System {
         self.tracking.relocalised_at
     }
 
+    /// Keyframes this system inserted (a loaded map's own not counted).
     pub fn keyframes_inserted(&self) -> usize {
         self.keyframes_inserted
     }
@@ -798,134 +658,6 @@ impl System {
     /// ([`YOUNG_MAP_KEYFRAMES`]).
     pub fn map_restarts(&self) -> usize {
         self.map_restarts
-    }
-
-    /// Local mapping for keyframe `id`: on the mapping thread (the map goes
-    /// with it until `settle`) or, without one, here and now. Every
-    /// `every_keyframes`-th keyframe, the mapped map is copied for the
-    /// checkpoint writer.
-    fn start_mapping(&mut self, id: usize) {
-        let checkpoint = self
-            .checkpointer
-            .as_ref()
-            .filter(|c| self.keyframes_inserted.is_multiple_of(c.every_keyframes()))
-            .map(Checkpointer::sender);
-        let snapshot = self.snapshots.as_mut().map(|(slot, period, last)| {
-            let due = last.is_none_or(|t| t.elapsed() >= *period);
-            if due {
-                *last = Some(std::time::Instant::now());
-            }
-            SnapshotRequest {
-                slot: slot.clone(),
-                due,
-            }
-        });
-        self.mapped_keyframe = Some((id, self.map.keyframes[id].pose_cw));
-        if let Some(mapper) = &self.mapper {
-            match mapper.submit(
-                std::mem::take(&mut self.map),
-                id,
-                checkpoint.clone(),
-                snapshot.clone(),
-            ) {
-                Ok(()) => {
-                    self.mapping = Mapping::OnThread;
-                    return;
-                }
-                Err(map) => {
-                    tracing::error!("local mapping thread gone: mapping inline from now on");
-                    self.map = map;
-                    self.mapper = None;
-                }
-            }
-        }
-        let report = map_keyframe(
-            &mut self.map,
-            id,
-            &self.camera,
-            &self.params,
-            &self.vocabulary,
-            &mut self.inline_loops,
-        );
-        if let Some(to_writer) = checkpoint {
-            to_writer.offer(&self.map);
-        }
-        if let Some(request) = snapshot {
-            request.fulfil(&self.map, id, &report);
-        }
-        self.mapping_ms = report.ms;
-        self.mapping = Mapping::Inline(report);
-    }
-
-    /// Takes the map back from local mapping (waiting for it) and applies
-    /// what it did: after local bundle adjustment tracking goes on from the
-    /// newest keyframe's adjusted pose (that keyframe is the last tracked
-    /// frame). If the mapping thread died the map is lost: tracking starts
-    /// a new one with the next frame.
-    fn settle(&mut self) {
-        let report = match std::mem::replace(&mut self.mapping, Mapping::Idle) {
-            Mapping::Idle => return,
-            Mapping::Inline(report) => report,
-            Mapping::OnThread => match self.mapper.as_ref().and_then(|m| m.collect()) {
-                Some((map, report)) => {
-                    self.map = map;
-                    self.mapping_ms = report.ms;
-                    report
-                }
-                None => {
-                    tracing::error!(
-                        "local mapping thread died: map lost, starting a new one (mapping inline)"
-                    );
-                    self.mapper = None;
-                    self.map = Map::default();
-                    self.tracking.reset();
-                    return;
-                }
-            },
-        };
-        self.mapped += report.counts;
-        for r in &report.loops {
-            self.loop_reports.push(*r);
-            if let Some(closed) = r.closed {
-                tracing::info!(
-                    "loop closed: keyframe {} with {} ({} inliers), corrected {:.3} m / {:.2} deg \
-                     (correction {:.0} ms, global BA {:.0} ms)",
-                    closed.keyframe,
-                    closed.matched,
-                    closed.inliers,
-                    closed.correction_m,
-                    closed.correction_deg,
-                    r.correct_ms,
-                    r.global_ba_ms,
-                );
-                self.loops.push(closed);
-            }
-        }
-        if let Some((id, before)) = self.mapped_keyframe.take() {
-            if let Some(kf) = self.map.keyframes.get(id).filter(|_| report.adjusted) {
-                self.tracking.follow_keyframe(&before, &kf.pose_cw);
-            }
-        }
-    }
-
-    /// Settles local mapping, then waits for the loop-closing thread to
-    /// finish what it was given and merges its corrections.
-    fn finish_loops(&mut self) {
-        self.settle();
-        let Some(mapper) = &self.mapper else {
-            return;
-        };
-        if !self.params.loop_closing {
-            return;
-        }
-        if let Some(id) = self.map.keyframes.len().checked_sub(1) {
-            self.mapped_keyframe = Some((id, self.map.keyframes[id].pose_cw));
-        }
-        match mapper.flush(std::mem::take(&mut self.map)) {
-            Ok(()) => self.mapping = Mapping::OnThread,
-            Err(map) => self.map = map,
-        }
-        self.settle();
     }
 
     fn bounds(&mut self, width: usize, height: usize) -> Bounds {

@@ -11,27 +11,52 @@ use std::path::{Path, PathBuf};
 use image::codecs::png::PngDecoder;
 use image::{ColorType, ImageDecoder};
 
+/// Why an image could not be decoded; each names the file.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum DecodeError {
+    /// The file could not be opened.
     #[error("{path}: cannot open: {message}")]
-    Open { path: PathBuf, message: String },
+    Open {
+        /// The image file.
+        path: PathBuf,
+        /// The system's reason.
+        message: String,
+    },
+    /// The PNG is damaged.
     #[error("{path}: corrupt or truncated PNG: {message}")]
-    Corrupt { path: PathBuf, message: String },
+    Corrupt {
+        /// The image file.
+        path: PathBuf,
+        /// The decoder's reason.
+        message: String,
+    },
+    /// The image is not the size the run's frames have.
     #[error("{path}: frame is {found_w}x{found_h}, expected {expected_w}x{expected_h}")]
     WrongSize {
+        /// The image file.
         path: PathBuf,
+        /// The size expected (pixels).
         expected_w: u32,
+        /// The size expected (pixels).
         expected_h: u32,
+        /// The file's size (pixels).
         found_w: u32,
+        /// The file's size (pixels).
         found_h: u32,
     },
+    /// The pixel format is not one the role takes (colour: 8-bit RGB, RGBA
+    /// or grey; depth: 16-bit grey).
     #[error(
         "{path}: pixel format {found} is not supported for {role} images (expected {expected})"
     )]
     Format {
+        /// The image file.
         path: PathBuf,
+        /// "colour" or "depth".
         role: &'static str,
+        /// The file's pixel format.
         found: String,
+        /// The formats the role takes.
         expected: &'static str,
     },
 }

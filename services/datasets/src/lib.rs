@@ -10,6 +10,8 @@
 //!   loaned shared-memory sample, in the camera-reader).
 //! - [`fuzz`]: cheap random texts for the parser robustness tests.
 
+#![deny(missing_docs)]
+
 pub mod decode;
 pub mod fuzz;
 pub mod source;

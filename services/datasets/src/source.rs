@@ -14,24 +14,45 @@ use std::path::{Path, PathBuf};
 pub struct FrameEntry {
     /// Source timestamp (seconds; TUM time, or index * period for folders).
     pub timestamp: f64,
+    /// The colour image.
     pub rgb: PathBuf,
+    /// The depth image (16-bit PNG), where the source has depth.
     pub depth: Option<PathBuf>,
 }
 
+/// Why a frame list could not be made; each names the file and line.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum SourceError {
+    /// The dataset folder is missing.
     #[error("dataset folder {0} does not exist or is not a folder")]
     MissingFolder(PathBuf),
+    /// A list could not be read.
     #[error("{path}: cannot read: {message}")]
-    Unreadable { path: PathBuf, message: String },
-    #[error("{path} line {line}: {message}")]
-    BadLine {
+    Unreadable {
+        /// The list or folder.
         path: PathBuf,
-        line: usize,
+        /// The system's reason.
         message: String,
     },
+    /// A line of a list is malformed or out of order.
+    #[error("{path} line {line}: {message}")]
+    BadLine {
+        /// The list.
+        path: PathBuf,
+        /// Its line (from 1).
+        line: usize,
+        /// What is wrong with it.
+        message: String,
+    },
+    /// A list or folder has no frames to play.
     #[error("{path}: {message}")]
-    Empty { path: PathBuf, message: String },
+    Empty {
+        /// The list or folder.
+        path: PathBuf,
+        /// What is missing.
+        message: String,
+    },
+    /// The configured source is live: it has no list (the source kind).
     #[error("source.kind = \"{0}\" is live (a camera or an outside publisher): there is no frame list to play")]
     Live(&'static str),
 }
@@ -39,6 +60,7 @@ pub enum SourceError {
 /// A timestamped file list (`rgb.txt`, `depth.txt`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct TimedList {
+    /// (timestamp in seconds, file), in the list's order.
     pub entries: Vec<(f64, PathBuf)>,
 }
 

@@ -109,7 +109,8 @@ fn no_file_over_800_lines_nor_function_over_120_lines() {
 
 #[test]
 fn the_function_reader_measures_a_function_from_its_line_to_its_brace() {
-    let text = "fn a() {\n    let x = { 1 };\n}\n\npub(crate) fn b(\n    y: u8,\n) -> u8 {\n    y\n}\n";
+    let text =
+        "fn a() {\n    let x = { 1 };\n}\n\npub(crate) fn b(\n    y: u8,\n) -> u8 {\n    y\n}\n";
     let lines = code_lines(text);
     assert_eq!(
         functions(&lines),

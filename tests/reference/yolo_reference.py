@@ -1,6 +1,6 @@
 """Reference YOLOv8-seg decoding: onnxruntime's Python API + straightforward NumPy.
 
-Produces the fixture that tests the Rust decoder (services/segmenter/tests/equivalence.rs):
+Produces the fixture that tests the Rust decoder (services/segmentation/tests/equivalence.rs):
 
     python yolo_reference.py MODEL.onnx IMAGE.png OUT.json
 

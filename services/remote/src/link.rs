@@ -99,7 +99,7 @@ impl RemoteSegmenter {
     /// up to `remote.startup_wait_s` for a worker.
     pub fn connect(config: &PipelineConfig) -> Result<Self> {
         let fallback = match config.services.segmenter.fallback.as_str() {
-            "local" => Some(segmenter::models::load(config)?),
+            "local" => Some(segmentation::models::load(config)?),
             _ => None,
         };
         Self::with_fallback(config, fallback)

@@ -1,7 +1,7 @@
 //! segmenter service: keyframe instance segmentation.
 //!
 //! A thin shell: the worker loop is `pipeline::mask_worker`; the backend
-//! named in `[services.segmenter]` comes from `segmenter::models`.
+//! named in `[services.segmenter]` comes from `segmentation::models`.
 
 use std::process::ExitCode;
 
@@ -20,7 +20,7 @@ struct Args {
 fn main() -> ExitCode {
     let args = Args::parse();
     run_service(ServiceKind::Segmenter, &args.service, |ctx| {
-        let model = segmenter::models::load(&ctx.config)?;
+        let model = segmentation::models::load(&ctx.config)?;
         mask_worker::run(ctx, MaskSource::Segmenter, model)
     })
 }

@@ -126,7 +126,7 @@ pub fn variants(static_original: Option<PathBuf>) -> Vec<Variant> {
 
 /// The segmenter's network YOLO11n-seg at `input_size` (rows j-l).
 fn yolo11_at(c: &mut PipelineConfig, input_size: u32) {
-    c.services.segmenter.backend = segmenter::exports::YoloFamily::V11.backend().into();
+    c.services.segmenter.backend = segmentation::exports::YoloFamily::V11.backend().into();
     c.services.segmenter.input_size = Some(input_size);
 }
 

@@ -212,7 +212,7 @@ fn run_config(
         "yolov8-seg" | "yolo11-seg" | "maskrcnn"
     ) {
         // Caught here, before any process starts, not as a degraded run.
-        segmenter::coco::dynamic_classes(&cfg.services.segmenter.classes, "segmenter")
+        segmentation::coco::dynamic_classes(&cfg.services.segmenter.classes, "segmenter")
             .map_err(anyhow::Error::msg)?;
     }
     if cfg.source.kind == pipeline::config::SourceKind::Ros2 && camera.is_none() {

@@ -34,8 +34,8 @@ use propagator::newcomers::NewcomerCheck;
 use crate::ignore::IgnoreRegions;
 use propagator::propagate::{LkPropagator, PropagatorParams};
 use scenes::truth::{instance_ious, InstanceIou};
-use segmenter::exports::YoloFamily;
-use segmenter::onnx::{YoloSeg, YoloSettings};
+use segmentation::exports::YoloFamily;
+use segmentation::onnx::{YoloSeg, YoloSettings};
 use serde::Serialize;
 
 #[derive(Debug, Clone, Serialize)]
@@ -312,7 +312,7 @@ pub fn compare_segmenters(
 ) -> Result<Vec<SegmenterScores>> {
     let mut rows = Vec::new();
     for family in YoloFamily::ALL {
-        for input_size in segmenter::exports::input_sizes() {
+        for input_size in segmentation::exports::input_sizes() {
             let mut cfg = config.clone();
             let seg = &mut cfg.services.segmenter;
             seg.backend = family.backend().into();

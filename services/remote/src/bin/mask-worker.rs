@@ -86,7 +86,7 @@ fn run(args: &Args) -> Result<()> {
         };
     }
     let Role::Segmenter = args.role;
-    let mut model = segmenter::models::load(&config)?;
+    let mut model = segmentation::models::load(&config)?;
     // SAFETY: the handler only stores to an atomic (async-signal-safe).
     unsafe {
         libc::signal(libc::SIGTERM, on_signal as *const () as libc::sighandler_t);

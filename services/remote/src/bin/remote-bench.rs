@@ -186,7 +186,7 @@ fn load_frames(dataset: &Path, n: usize, depth_scale: f32) -> Result<Vec<Frame>>
 
 /// The model's own time per frame, in this process (p50 ms).
 fn local_p50(config: &PipelineConfig, frames: &[Frame]) -> Result<f64> {
-    let mut model = segmenter::models::load(config)?;
+    let mut model = segmentation::models::load(config)?;
     let mut ms = Vec::new();
     run_frames(&mut *model, frames, |t| ms.push(t))?;
     ms.sort_by(f64::total_cmp);

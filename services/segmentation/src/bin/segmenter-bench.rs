@@ -2,7 +2,7 @@
 //! (letterbox + inference + decoding + mask painting) on real TUM frames,
 //! ONNX Runtime with the configured number of threads, for each network
 //! (YOLOv8n-seg, YOLO11n-seg) at each input size (320, 480, 640: the
-//! exports of `segmenter::exports`), back to back in one run so that the
+//! exports of `segmentation::exports`), back to back in one run so that the
 //! ratios compare like with like; each row's p50 is also given as a ratio
 //! to the first row's (by default YOLOv8n-seg at 320, real time's). Each
 //! frame is segmented as the service does it: with its depth and the frame
@@ -23,8 +23,8 @@ use onnx_runtime::init_runtime;
 use pipeline::config::PipelineConfig;
 use pipeline::stats::percentile;
 use pipeline::views::DepthImage;
-use segmenter::exports::YoloFamily;
-use segmenter::onnx::{YoloSeg, YoloSettings};
+use segmentation::exports::YoloFamily;
+use segmentation::onnx::{YoloSeg, YoloSettings};
 
 #[derive(Debug, Parser)]
 #[command(about = "YOLO-seg segmenters: ms per 640x480 frame")]

@@ -8,8 +8,8 @@ use std::path::{Path, PathBuf};
 use onnx_runtime::init_runtime;
 use pipeline::config::{OnnxRuntimeConfig, SegmenterConfig};
 use pipeline::provision::{sha256_of, ORT_CACHE};
-use segmenter::coco::CLASSES;
-use segmenter::maskrcnn::MaskRcnn;
+use segmentation::coco::CLASSES;
+use segmentation::maskrcnn::MaskRcnn;
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")

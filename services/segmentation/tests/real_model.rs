@@ -7,9 +7,9 @@ use std::path::{Path, PathBuf};
 use onnx_runtime::init_runtime;
 use pipeline::config::{OnnxRuntimeConfig, SegmenterConfig};
 use pipeline::provision::ORT_CACHE;
-use segmenter::coco::CLASSES;
-use segmenter::exports::YoloFamily;
-use segmenter::onnx::{YoloSeg, YoloSettings};
+use segmentation::coco::CLASSES;
+use segmentation::exports::YoloFamily;
+use segmentation::onnx::{YoloSeg, YoloSettings};
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
@@ -272,7 +272,7 @@ fn an_input_size_the_model_does_not_take_is_a_configuration_error() {
     .unwrap();
     let cfg = SegmenterConfig {
         model: "my-yolo.onnx".into(),
-        model_sha256: segmenter::exports::export_for(YoloFamily::V8, 320)
+        model_sha256: segmentation::exports::export_for(YoloFamily::V8, 320)
             .unwrap()
             .sha256
             .into(),
@@ -318,7 +318,9 @@ fn model_at(family: YoloFamily, size: usize) -> YoloSeg {
 /// The export of `size` in ../shared/models or where `just setup` derives
 /// it (.cache/models).
 fn export_path(family: YoloFamily, size: usize) -> PathBuf {
-    let file = segmenter::exports::export_for(family, size).unwrap().file;
+    let file = segmentation::exports::export_for(family, size)
+        .unwrap()
+        .file;
     [
         repo().join("../shared/models").join(file),
         repo().join(pipeline::provision::DERIVED_MODELS).join(file),

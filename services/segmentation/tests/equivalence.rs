@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use onnx_runtime::init_runtime;
 use pipeline::config::{OnnxRuntimeConfig, SegmenterConfig};
 use pipeline::provision::ORT_CACHE;
-use segmenter::onnx::{YoloSeg, YoloSettings};
+use segmentation::onnx::{YoloSeg, YoloSettings};
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")

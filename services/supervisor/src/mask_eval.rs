@@ -29,10 +29,10 @@ use onnx_runtime::init_runtime;
 use pipeline::config::PipelineConfig;
 use pipeline::progress::Progress;
 use pipeline::views::DepthImage;
-use propagator::newcomers::NewcomerCheck;
+use propagation::newcomers::NewcomerCheck;
 
 use crate::ignore::IgnoreRegions;
-use propagator::propagate::{LkPropagator, PropagatorParams};
+use propagation::propagate::{LkPropagator, PropagatorParams};
 use scenes::truth::{instance_ious, InstanceIou};
 use segmentation::exports::YoloFamily;
 use segmentation::onnx::{YoloSeg, YoloSettings};

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 use pipeline::config::{OnnxRuntimeConfig, PropagatorConfig};
 use pipeline::provision::{sha256_of, ORT_CACHE};
-use propagator::sam2::{Sam2Propagator, Sam2Settings};
+use propagation::sam2::{Sam2Propagator, Sam2Settings};
 use shared_types::Instance;
 
 fn repo() -> PathBuf {

@@ -9,11 +9,13 @@
 //!   motion, so that non-rigid parts follow) and its mask warped.
 //! - [`newcomers`]: regions that move unlike the camera outside every
 //!   followed object: an early segmenter request.
+//! - [`models`]: the backends by name, as `[services.propagator]` selects.
 //! - [`sam2`]: the `sam2` backend, SAM 2's image encoder and prompt/mask
 //!   decoder through ONNX Runtime, for users who have its weights.
 
 #![deny(missing_docs)]
 
+pub mod models;
 pub mod newcomers;
 pub mod propagate;
 pub mod sam2;

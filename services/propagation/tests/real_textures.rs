@@ -5,9 +5,9 @@
 
 use std::path::Path;
 
-use propagator::newcomers::DepthImage;
-use propagator::propagate::{LkPropagator, PropagatorParams};
-use propagator::synthetic;
+use propagation::newcomers::DepthImage;
+use propagation::propagate::{LkPropagator, PropagatorParams};
+use propagation::synthetic;
 use shared_types::Instance;
 
 const W: usize = 640;

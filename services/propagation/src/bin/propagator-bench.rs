@@ -21,11 +21,11 @@ use datasets::decode::decode_depth_into;
 use datasets::source::tum_folder;
 use pipeline::config::{CameraConfig, OnnxRuntimeConfig, PropagatorConfig, RoutingConfig};
 use pipeline::stats::percentile;
-use propagator::newcomers::{DepthImage, NewcomerCheck};
-use propagator::propagate::{LkPropagator, PropagatorParams};
-use propagator::pyramid::{Gray, Pyramid};
-use propagator::sam2::{Sam2Propagator, Sam2Settings};
-use propagator::synthetic::{iou, render};
+use propagation::newcomers::{DepthImage, NewcomerCheck};
+use propagation::propagate::{LkPropagator, PropagatorParams};
+use propagation::pyramid::{Gray, Pyramid};
+use propagation::sam2::{Sam2Propagator, Sam2Settings};
+use propagation::synthetic::{iou, render};
 use shared_types::Instance;
 
 #[derive(Debug, Parser)]

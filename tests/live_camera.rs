@@ -3,8 +3,8 @@
 //! node that is not a camera. Each ends the run at once, before any service
 //! starts, with an error naming the device and what to do; nothing is left
 //! in shared memory. The
-//! pixel formats are tested on camera byte layouts in camera-reader's
-//! `convert` tests.
+//! pixel formats are tested on camera byte layouts in the live-camera
+//! crate's `convert` tests.
 
 mod common;
 use common::*;

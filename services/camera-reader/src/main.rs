@@ -11,10 +11,10 @@ use std::time::Duration;
 
 use anyhow::Result;
 use camera_reader::frame::{decode_frame, header_for, mark_bad, FrameGeometry};
-use camera_reader::v4l2::{Camera, Captured};
 use clap::Parser;
 use datasets::decode::png_size;
 use datasets::source::FrameEntry;
+use live_camera::v4l2::{Camera, Captured};
 use pipeline::clock::now_ns;
 use pipeline::config::{ClockMode, SourceKind};
 use pipeline::runtime::{run_service, InputError, ServiceArgs, ServiceContext};

@@ -24,10 +24,10 @@ use shared_types::{
     control_kind, frame_flags, mask_flags, Control, FrameHeader, MaskSource, MasksHeader, Pose,
     Route, RouteKind, ServiceKind, StageStamps, Track, TrackState,
 };
-use slam::bridge_link::BridgeLink;
-use slam::rgbd_tracker::{MapFiles, RgbdTracker};
-use slam::scripted::ScriptedTracker;
-use slam::tracker::{TrackInput, Tracker};
+use slam_backend::bridge_link::BridgeLink;
+use slam_backend::rgbd_tracker::{MapFiles, RgbdTracker};
+use slam_backend::scripted::ScriptedTracker;
+use slam_backend::tracker::{TrackInput, Tracker};
 use slam_core::io::ply::write_ply;
 use slam_core::KeyframeTiming;
 
@@ -490,7 +490,7 @@ fn track_next_ready(
 fn record_loops(tracker: &mut dyn Tracker, path: Option<&std::path::Path>) -> Result<()> {
     let loops = tracker.take_loops();
     match path {
-        Some(path) if !loops.is_empty() => slam::loops_csv::append(path, &loops)
+        Some(path) if !loops.is_empty() => slam_backend::loops_csv::append(path, &loops)
             .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display())),
         _ => Ok(()),
     }
@@ -507,7 +507,7 @@ fn keyframe_timing(st: &State, index: usize, realtime: bool) -> KeyframeTiming {
     // At most one masks sample per frame is held (a frame's segmenter
     // masks replace its propagated ones).
     let own_masks = st.masks.iter().find(|m| m.user_header().seq == seq);
-    slam::convert::keyframe_timing(scheduling::keyframe_timing(KeyframeFacts {
+    slam_backend::convert::keyframe_timing(scheduling::keyframe_timing(KeyframeFacts {
         realtime,
         route: st
             .routes

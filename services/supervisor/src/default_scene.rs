@@ -29,7 +29,7 @@ pub fn ensure(output_dir: &Path, cfg: &PipelineConfig) -> Result<PathBuf> {
             "no dataset given: rendering the embedded default scene (a room, a moving camera, two people walking) into {}",
             dir.display()
         );
-        let camera = slam::convert::camera(&cfg.camera, cfg.source.depth_scale as f64);
+        let camera = slam_backend::convert::camera(&cfg.camera, cfg.source.depth_scale as f64);
         // 640x480, the frame size the configured intrinsics are for.
         let (_, summary) = default_scene(&dir, &camera, &RoomOptions::default())
             .with_context(|| format!("cannot render the default scene into {}", dir.display()))?;

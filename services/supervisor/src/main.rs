@@ -253,7 +253,7 @@ fn resolve_source(cfg: &mut PipelineConfig, out: &std::path::Path) -> Result<()>
         );
     }
     if cfg.source.kind == pipeline::config::SourceKind::V4l2 {
-        camera_reader::v4l2::probe(&cfg.source)?;
+        live_camera::v4l2::probe(&cfg.source)?;
     }
     if live.is_none() && cfg.source.path.as_os_str().is_empty() {
         // No dataset: the embedded default scene (rendered once).
@@ -354,8 +354,7 @@ fn ablate(
 
 /// `dynslam cameras`: the V4L2 capture devices and how each would be used.
 fn cameras() -> Result<ExitCode> {
-    let cameras =
-        camera_reader::v4l2::list_cameras().context("cannot list /dev for V4L2 cameras")?;
+    let cameras = live_camera::v4l2::list_cameras().context("cannot list /dev for V4L2 cameras")?;
     if cameras.is_empty() {
         println!("no V4L2 capture device under /dev (is a camera plugged in? is /dev/video* visible here, e.g. inside a container?)");
     }

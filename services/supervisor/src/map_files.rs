@@ -19,8 +19,8 @@ pub const RESUME_POSES_FILE: &str = "slam-resume-poses.txt";
 /// load must be a map file for this camera and the SLAM's pyramid, a map to
 /// save must have a folder to go to, localization needs a map.
 pub fn prepare(cfg: &mut PipelineConfig) -> Result<()> {
-    let camera = slam::convert::camera(&cfg.camera, cfg.source.depth_scale as f64);
-    let params = slam::convert::params(cfg);
+    let camera = slam_backend::convert::camera(&cfg.camera, cfg.source.depth_scale as f64);
+    let params = slam_backend::convert::params(cfg);
     let slam = &mut cfg.services.slam;
     let wants_map = slam.load_map.is_some() || slam.save_map.is_some() || slam.localize_only;
     if wants_map && slam.backend != "orb-rgbd" {

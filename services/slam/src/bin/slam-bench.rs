@@ -27,7 +27,7 @@ use datasets::source::{tum_folder, FrameEntry, MaskList};
 use pipeline::config::{CameraConfig, PipelineConfig};
 use pipeline::progress::Progress;
 use pipeline::stats::percentile;
-use slam::convert;
+use slam_backend::convert;
 use slam_core::eval::{evaluate_files, Alignment, EvalOptions};
 use slam_core::features::orb::{GrayU8, OrbBackend, OrbExtractor, OrbParams};
 use slam_core::io::trajectory::Trajectory;

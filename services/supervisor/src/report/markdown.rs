@@ -297,7 +297,7 @@ fn files(md: &mut String, run_dir: &Path) -> Result<()> {
         )?,
     }
     let loops = run_dir.join(crate::run::LOOPS_FILE);
-    match slam::loops_csv::count_rows(&loops) {
+    match slam_backend::loops_csv::count_rows(&loops) {
         Ok(0) if !loops.exists() => writeln!(
             md,
             "- no `loops.csv`: no loop closed (loop closing is `services.slam.loop_closing`, off by default)"

@@ -307,7 +307,7 @@ fn mask_figures(
 /// Where in `e`'s associated poses each loop of `loops.csv` closed (the
 /// pose nearest its timestamp).
 fn loop_indices(run_dir: &Path, e: &EvalSummary) -> Vec<usize> {
-    let stamps = slam::loops_csv::timestamps(&run_dir.join(crate::run::LOOPS_FILE));
+    let stamps = slam_backend::loops_csv::timestamps(&run_dir.join(crate::run::LOOPS_FILE));
     stamps
         .unwrap_or_default()
         .into_iter()

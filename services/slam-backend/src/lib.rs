@@ -1,4 +1,4 @@
-//! The SLAM service's library: the seam between the service and a SLAM
+//! What the SLAM service runs, as a library: the seam between the service and a SLAM
 //! implementation ([`tracker::Tracker`]), the `orb-rgbd` backend over the
 //! SLAM core (the `slam-core` crate, which has no IPC in it), the
 //! `scripted` test double, `loops.csv`, what it shares with the ROS 2

@@ -15,24 +15,43 @@ use image::ImageDecoder;
 /// Why a camera buffer could not become a frame.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum ConvertError {
+    /// The buffer holds fewer bytes than the negotiated frame needs.
     #[error("{format} buffer of {got} bytes, {width}x{height} needs {need} (stride {stride})")]
     Short {
+        /// The pixel format (fourcc).
         format: &'static str,
+        /// Bytes in the buffer.
         got: usize,
+        /// Bytes the frame needs.
         need: usize,
+        /// The negotiated size (pixels).
         width: u32,
+        /// The negotiated size (pixels).
         height: u32,
+        /// Bytes per row as the driver lays them out.
         stride: usize,
     },
+    /// 4:2:2 needs an even width.
     #[error("{width}x{height}: an odd width for 4:2:2, or a frame buffer too small for it")]
-    Odd { width: u32, height: u32 },
+    Odd {
+        /// The negotiated size (pixels).
+        width: u32,
+        /// The negotiated size (pixels).
+        height: u32,
+    },
+    /// The MJPEG frame is not a decodable JPEG (the decoder's reason).
     #[error("MJPEG frame does not decode: {0}")]
     Jpeg(String),
+    /// The MJPEG frame's size is not the stream's.
     #[error("MJPEG frame is {got_w}x{got_h}, the stream was negotiated at {width}x{height}")]
     JpegSize {
+        /// The JPEG's size (pixels).
         got_w: u32,
+        /// The JPEG's size (pixels).
         got_h: u32,
+        /// The negotiated size (pixels).
         width: u32,
+        /// The negotiated size (pixels).
         height: u32,
     },
 }
@@ -265,6 +284,7 @@ pub struct DepthPairer {
 const DEPTH_KEPT: usize = 4;
 
 impl DepthPairer {
+    /// Pairs frames that arrived at most `max_diff_s` seconds apart.
     pub fn new(max_diff_s: f64) -> Self {
         Self {
             max_diff_ns: (max_diff_s * 1e9) as u64,
@@ -277,6 +297,8 @@ impl DepthPairer {
         self.max_diff_ns
     }
 
+    /// Keeps a depth frame that arrived at `arrival_ns` (the oldest goes
+    /// when `DEPTH_KEPT` wait).
     pub fn push(&mut self, arrival_ns: u64, depth: Vec<u8>) {
         if self.waiting.len() == DEPTH_KEPT {
             self.waiting.pop_front();

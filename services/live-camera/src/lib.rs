@@ -6,5 +6,7 @@
 //! - [`convert`]: a camera's pixel formats (YUYV, MJPEG, Z16) into the
 //!   frame's RGB and depth bytes.
 
+#![deny(missing_docs)]
+
 pub mod convert;
 pub mod v4l2;

@@ -24,22 +24,53 @@ const YUYV: PixelFormat = PixelFormat::YUYV;
 const MJPG: PixelFormat = PixelFormat::MJPG;
 const Z16: PixelFormat = PixelFormat::from_fourcc(*b"Z16 ");
 
+/// Why a camera cannot be used; each names the device node.
 #[derive(Debug, thiserror::Error)]
 pub enum CameraError {
+    /// The node does not exist.
     #[error("camera {}: no such device (is it plugged in? `ls /dev/video*` lists the nodes; key source.v4l2.{key})", .path.display())]
-    NoDevice { path: PathBuf, key: &'static str },
+    NoDevice {
+        /// The device node.
+        path: PathBuf,
+        /// The config key that named it.
+        key: &'static str,
+    },
+    /// The user may not open it.
     #[error("camera {}: permission denied (add your user to the `video` group, then log in again)", .path.display())]
-    Permission { path: PathBuf },
+    Permission {
+        /// The device node.
+        path: PathBuf,
+    },
+    /// Another program streams from it.
     #[error("camera {}: busy, another program is streaming from it (`fuser {}` names it)", .path.display(), .path.display())]
-    Busy { path: PathBuf },
+    Busy {
+        /// The device node.
+        path: PathBuf,
+    },
+    /// The node is not a video capture device.
     #[error("camera {}: not a V4L2 video capture device ({why})", .path.display())]
-    NotACamera { path: PathBuf, why: String },
+    NotACamera {
+        /// The device node.
+        path: PathBuf,
+        /// What it is instead.
+        why: String,
+    },
+    /// No format or size the run can use.
     #[error("camera {}: {why}", .path.display())]
-    Format { path: PathBuf, why: String },
+    Format {
+        /// The device node.
+        path: PathBuf,
+        /// What it offers, against what is wanted.
+        why: String,
+    },
+    /// A system call on the node failed.
     #[error("camera {}: {what}: {source}", .path.display())]
     Io {
+        /// The device node.
         path: PathBuf,
+        /// What was being done.
         what: &'static str,
+        /// The system's error.
         source: io::Error,
     },
 }
@@ -154,6 +185,7 @@ pub fn probe(src: &SourceConfig) -> Result<(), CameraError> {
 /// A V4L2 capture node as `dynslam cameras` lists it.
 #[derive(Debug)]
 pub struct CameraInfo {
+    /// The device node (`/dev/video0`).
     pub path: PathBuf,
     /// The driver's name for the device ("HD Pro Webcam C920").
     pub card: String,
@@ -309,13 +341,18 @@ pub struct Camera {
 
 /// What became of one colour buffer.
 pub enum Captured {
-    /// The frame is in the payload; `depth` says whether depth came with it.
-    Frame { depth: bool },
+    /// The frame is in the payload.
+    Frame {
+        /// Whether depth came with it.
+        depth: bool,
+    },
     /// The buffer could not be used (the reason); the frame goes out bad.
     Bad(String),
 }
 
 impl Camera {
+    /// Opens the colour node (and the depth node, when configured) as
+    /// `source.v4l2` asks: format, size and rate negotiated.
     pub fn open(src: &SourceConfig) -> Result<Self, CameraError> {
         let v = &src.v4l2;
         let wanted = v.pixel_format.clone();
@@ -355,10 +392,12 @@ impl Camera {
         })
     }
 
+    /// The negotiated frame size (pixels).
     pub fn size(&self) -> (u32, u32) {
         (self.colour.width, self.colour.height)
     }
 
+    /// Whether a depth node streams beside the colour one.
     pub fn has_depth(&self) -> bool {
         self.depth.is_some()
     }

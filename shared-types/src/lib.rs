@@ -10,6 +10,8 @@
 //! header is one of the `*Header` types below (static allocation strategy, the
 //! maximum size fixed by the pipeline configuration).
 
+#![deny(missing_docs)]
+
 use iceoryx2::prelude::ZeroCopySend;
 
 pub mod names;
@@ -49,16 +51,20 @@ pub struct StageStamps {
 #[repr(u32)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PixelFormat {
+    /// 8-bit red, green, blue, row by row without padding.
     Rgb8 = 1,
 }
 
 impl PixelFormat {
+    /// The format a header's `pixel_format` names; None for a value this
+    /// build does not know.
     pub fn from_u32(v: u32) -> Option<Self> {
         match v {
             1 => Some(Self::Rgb8),
             _ => None,
         }
     }
+    /// Bytes per pixel of the colour part.
     pub fn bytes_per_pixel(self) -> usize {
         match self {
             Self::Rgb8 => 3,
@@ -99,18 +105,24 @@ pub const ERROR_TEXT_LEN: usize = 192;
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
 #[type_name("dynslam::FrameHeader.v1")]
 pub struct FrameHeader {
+    /// The frame's number in the run, from 0 (the key every other payload
+    /// refers to it by).
     pub seq: u64,
     /// Timestamp of the source (TUM timestamp in seconds, or file order).
     pub source_timestamp: f64,
+    /// Image width (pixels).
     pub width: u32,
+    /// Image height (pixels).
     pub height: u32,
     /// A [`PixelFormat`] value.
     pub pixel_format: u32,
+    /// Non-zero when the payload carries depth after the colour.
     pub has_depth: u32,
     /// Depth value per metre (5000 for TUM).
     pub depth_scale: f32,
     /// [`frame_flags`] bits.
     pub flags: u32,
+    /// When each stage handled the frame so far.
     pub stamps: StageStamps,
     /// Why the frame is [`frame_flags::BAD_INPUT`] (NUL padded).
     pub error: [u8; ERROR_TEXT_LEN],
@@ -134,6 +146,7 @@ impl Default for FrameHeader {
 }
 
 impl FrameHeader {
+    /// Whether [`frame_flags`] bit `flag` is set.
     pub fn has(&self, flag: u32) -> bool {
         self.flags & flag != 0
     }
@@ -144,9 +157,11 @@ impl FrameHeader {
             && !self.has(frame_flags::END_OF_STREAM)
             && !self.has(frame_flags::DROPPED_AT_SOURCE)
     }
+    /// Bytes of the colour part of the payload.
     pub fn rgb_len(&self) -> usize {
         self.width as usize * self.height as usize * 3
     }
+    /// Bytes of the depth part of the payload (0 without depth).
     pub fn depth_len(&self) -> usize {
         if self.has_depth != 0 {
             self.width as usize * self.height as usize * 2
@@ -191,6 +206,7 @@ impl RouteKind {
     pub fn makes_masks(self) -> bool {
         self.segments() || self.propagates()
     }
+    /// The route a [`Route::kind`] names; None for an unknown value.
     pub fn from_u32(v: u32) -> Option<Self> {
         match v {
             1 => Some(Self::Segment),
@@ -201,6 +217,7 @@ impl RouteKind {
             _ => None,
         }
     }
+    /// The route's name in frames.csv.
     pub fn as_str(self) -> &'static str {
         match self {
             Self::Segment => "segment",
@@ -216,11 +233,13 @@ impl RouteKind {
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
 pub struct Route {
+    /// The frame routed.
     pub seq: u64,
     /// A [`RouteKind`] value.
     pub kind: u32,
     /// Non-zero when this route is re-issued after a restart.
     pub replay: u32,
+    /// The frame's stamps, the routing's included.
     pub stamps: StageStamps,
 }
 
@@ -228,12 +247,16 @@ pub struct Route {
 #[repr(u32)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum MaskSource {
+    /// No masks: the frame goes unmasked.
     None = 0,
+    /// The segmenter's (a keyframe's own masks).
     Segmenter = 1,
+    /// The propagator's (carried from the last segmented frame).
     Propagator = 2,
 }
 
 impl MaskSource {
+    /// The source a header's `source` names; None for an unknown value.
     pub fn from_u32(v: u32) -> Option<Self> {
         match v {
             0 => Some(Self::None),
@@ -242,6 +265,7 @@ impl MaskSource {
             _ => None,
         }
     }
+    /// The source's name in frames.csv and masks.csv.
     pub fn as_str(self) -> &'static str {
         match self {
             Self::None => "none",
@@ -259,6 +283,7 @@ pub struct Instance {
     pub object_id: u32,
     /// Class id in the model's class list (COCO for the shipped models).
     pub class_id: u32,
+    /// The model's confidence (0-1).
     pub score: f32,
     /// Bounding box x0, y0, x1, y1 in pixels of the frame.
     pub bbox: [f32; 4],
@@ -312,17 +337,23 @@ pub mod mask_flags {
 #[repr(C)]
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
 pub struct MasksHeader {
+    /// The frame the masks are of.
     pub seq: u64,
     /// A [`MaskSource`] value.
     pub source: u32,
+    /// Label image width (pixels; 0 when no labels follow).
     pub width: u32,
+    /// Label image height (pixels; 0 when no labels follow).
     pub height: u32,
+    /// How many of `instances` are used.
     pub num_instances: u32,
     /// [`mask_flags`] bits.
     pub flags: u32,
     /// Inference time of the model alone (nanoseconds).
     pub inference_ns: u64,
+    /// The objects, `num_instances` of them used.
     pub instances: [Instance; MAX_INSTANCES],
+    /// The frame's stamps, the worker's included.
     pub stamps: StageStamps,
 }
 
@@ -343,9 +374,12 @@ impl Default for MasksHeader {
 }
 
 impl MasksHeader {
+    /// Whether [`mask_flags`] bit `flag` is set.
     pub fn has(&self, flag: u32) -> bool {
         self.flags & flag != 0
     }
+    /// The instances used (never more than [`MAX_INSTANCES`], whatever
+    /// `num_instances` says).
     pub fn instances(&self) -> &[Instance] {
         &self.instances[..(self.num_instances as usize).min(MAX_INSTANCES)]
     }
@@ -363,15 +397,21 @@ impl MasksHeader {
 #[repr(u32)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum TrackState {
+    /// No map yet (the start waits for a frame with enough features with
+    /// depth; monocular: for two views with enough parallax).
     NotInitialised = 0,
+    /// Tracked in the map.
     Ok = 1,
+    /// Not tracked: no pose for this frame.
     Lost = 2,
+    /// Found again in the map after being lost (it has a pose).
     Relocalised = 3,
     /// The frame was not tracked (bad input); see the run's log.
     Skipped = 4,
 }
 
 impl TrackState {
+    /// The state a [`Track::state`] names; None for an unknown value.
     pub fn from_u32(v: u32) -> Option<Self> {
         match v {
             0 => Some(Self::NotInitialised),
@@ -382,6 +422,7 @@ impl TrackState {
             _ => None,
         }
     }
+    /// The state's name in frames.csv.
     pub fn as_str(self) -> &'static str {
         match self {
             Self::NotInitialised => "not_initialised",
@@ -401,21 +442,25 @@ impl TrackState {
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
 pub struct TrackCounts {
+    /// ORB features of the frame (after the masks and the motion check).
     pub features: u32,
     /// Features dropped because they fell inside a dynamic mask.
     pub features_masked: u32,
     /// Features dropped after tracking because they moved unlike the
     /// camera (the SLAM's motion check).
     pub features_moving: u32,
+    /// Features matched to map points that the pose optimisation kept.
     pub inliers: u32,
+    /// Map points in the map after this frame.
     pub map_points: u32,
+    /// Keyframes in the map after this frame.
     pub keyframes: u32,
-    /// Time of SLAM's steps for this frame (microseconds): feature
-    /// extraction, and local mapping of the keyframe whose mapping finished
-    /// during this frame (on the local-mapping thread, overlapping
-    /// extraction); the rest of the tracking span is matching and pose
-    /// optimisation.
+    /// Time of feature extraction for this frame (microseconds); the rest
+    /// of the tracking span is matching and pose optimisation.
     pub extract_us: u32,
+    /// Time of local mapping of the keyframe whose mapping finished during
+    /// this frame (microseconds; on the local-mapping thread, overlapping
+    /// extraction).
     pub mapping_us: u32,
     /// 1: the frame was tracked by following the last frame's points with
     /// optical flow, without ORB extraction (`services.slam.flow_frames`).
@@ -426,7 +471,9 @@ pub struct TrackCounts {
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
 pub struct Track {
+    /// The frame tracked.
     pub seq: u64,
+    /// Its source timestamp (seconds), as the frame header had it.
     pub source_timestamp: f64,
     /// World-from-camera pose: tx ty tz qx qy qz qw (TUM order).
     pub pose: [f64; 7],
@@ -440,7 +487,9 @@ pub struct Track {
     pub mask_source: u32,
     /// The [`mask_flags`] of those masks (where they were made).
     pub mask_flags: u32,
+    /// What the frame cost and produced.
     pub counts: TrackCounts,
+    /// The frame's stamps, the SLAM's included.
     pub stamps: StageStamps,
 }
 
@@ -448,9 +497,13 @@ pub struct Track {
 #[repr(u32)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum ServiceKind {
+    /// Plays the dataset or camera into shared memory.
     CameraReader = 1,
+    /// Keyframe masks.
     Segmenter = 2,
+    /// Masks of the other frames.
     Propagator = 3,
+    /// Tracking and mapping.
     Slam = 4,
     /// The ROS 2 bridge: optional, off the frame path (not in [`Self::ALL`],
     /// the services every run has).
@@ -462,12 +515,14 @@ pub enum ServiceKind {
 }
 
 impl ServiceKind {
+    /// The services every run has.
     pub const ALL: [ServiceKind; 4] = [
         ServiceKind::Slam,
         ServiceKind::Segmenter,
         ServiceKind::Propagator,
         ServiceKind::CameraReader,
     ];
+    /// The service a [`Lifecycle::service`] names; None for an unknown value.
     pub fn from_u32(v: u32) -> Option<Self> {
         match v {
             1 => Some(Self::CameraReader),
@@ -520,10 +575,12 @@ pub struct Pose {
     pub pose: [f64; 7],
     /// 1 when the frame became a keyframe.
     pub keyframe: u32,
+    /// Zero (keeps the layout 8-byte aligned; room for a later field).
     pub reserved: u32,
 }
 
 impl Pose {
+    /// The published pose of a SLAM result.
     pub fn of(track: &Track) -> Self {
         Self {
             version: POSE_VERSION,
@@ -543,7 +600,9 @@ impl Pose {
 pub struct Lifecycle {
     /// A [`ServiceKind`] value.
     pub service: u32,
+    /// The announcing process.
     pub pid: u32,
+    /// When it became ready (CLOCK_MONOTONIC, nanoseconds).
     pub ready_ns: u64,
 }
 
@@ -588,13 +647,17 @@ pub struct MapHeader {
     pub stamp: f64,
     /// Loops closed so far (each moved keyframes).
     pub loops: u32,
+    /// Keyframe poses in the payload.
     pub keyframes: u32,
+    /// Points in the payload.
     pub points: u32,
     /// Points left out: the sample had no room for them.
     pub points_left_out: u32,
 }
 
+/// Bytes of one keyframe pose in a map payload (7 `f64`).
 pub const MAP_KEYFRAME_BYTES: usize = 56;
+/// Bytes of one point in a map payload (3 `f32`, 4 colour bytes, a `u32`).
 pub const MAP_POINT_BYTES: usize = 20;
 
 impl MapHeader {
@@ -618,6 +681,7 @@ pub enum SlamCommandKind {
 }
 
 impl SlamCommandKind {
+    /// The command a [`SlamCommand::kind`] names; None for an unknown value.
     pub fn from_u32(v: u32) -> Option<Self> {
         match v {
             1 => Some(Self::SaveMap),
@@ -635,9 +699,11 @@ pub const COMMAND_TEXT_LEN: usize = ERROR_TEXT_LEN;
 #[repr(C)]
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
 pub struct SlamCommand {
+    /// The bridge's number for the command, echoed by the reply.
     pub id: u64,
     /// A [`SlamCommandKind`] value.
     pub kind: u32,
+    /// The command's switch (`SetLocalizationMode`: 1 on, 0 off).
     pub flag: u32,
     /// NUL-padded UTF-8 ([`write_error_text`]).
     pub name: [u8; COMMAND_TEXT_LEN],
@@ -658,9 +724,11 @@ impl Default for SlamCommand {
 #[repr(C)]
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
 pub struct SlamReply {
+    /// The command answered.
     pub id: u64,
     /// 1: done.
     pub ok: u32,
+    /// Zero (keeps the layout 8-byte aligned).
     pub reserved: u32,
     /// What was done, or why not (NUL-padded UTF-8).
     pub message: [u8; COMMAND_TEXT_LEN],
@@ -678,6 +746,7 @@ impl Default for SlamReply {
 }
 
 impl SlamReply {
+    /// The reply to command `id`: what was done, or why not.
     pub fn new(id: u64, result: Result<String, String>) -> Self {
         let mut reply = Self {
             id,

@@ -34,6 +34,7 @@ pub enum Topic {
 }
 
 impl Topic {
+    /// Every topic of a run.
     pub const ALL: [Topic; 10] = [
         Topic::Frames,
         Topic::Routes,
@@ -46,6 +47,7 @@ impl Topic {
         Topic::SlamCommands,
         Topic::SlamReplies,
     ];
+    /// The topic's part of its iceoryx2 service name.
     pub fn as_str(self) -> &'static str {
         match self {
             Topic::Frames => "frames",
@@ -92,6 +94,7 @@ impl RunNames {
         })
     }
 
+    /// The run id these names are of.
     pub fn run_id(&self) -> &str {
         &self.run_id
     }

@@ -5,6 +5,8 @@
 //! failure a user can fix is a [`pipeline::runtime::InputError`] naming the
 //! file or key.
 
+#![deny(missing_docs)]
+
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 

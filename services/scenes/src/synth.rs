@@ -351,6 +351,7 @@ impl FrameJob<'_> {
                 .collect(),
         })
     }
+
     /// The frame's colour and depth images (16-bit, of the same size), and
     /// the depth image's path.
     fn load(&self) -> Result<(RgbImage, Depth16, &Path), SynthError> {

@@ -94,6 +94,8 @@ fn no_crate_depends_on_a_service_crate() {
     }
     for library in [
         "datasets",
+        "run-folder",
+        "evaluation",
         "slam-core",
         "scheduling",
         "pipeline",

@@ -21,7 +21,7 @@ use pipeline::config::PipelineConfig;
 use serde::Serialize;
 
 use crate::run::execute;
-use crate::run_dir;
+use run_folder::run_dir;
 
 /// One configuration of the ablation.
 #[derive(Debug, Clone)]

@@ -11,8 +11,8 @@ use anyhow::{Context, Result};
 use clap::Parser;
 use pipeline::config::{ClockMode, PipelineConfig};
 use pipeline::runtime::init_logging;
+use run_folder::run_dir;
 use supervisor::run::{execute, RunSummary};
-use supervisor::run_dir;
 
 mod cli;
 use cli::{
@@ -44,13 +44,13 @@ fn dispatch(command: Command) -> Result<ExitCode> {
         } => ablate(&dataset, config.as_deref(), output_dir, limit, &only),
         Command::Report { run_dir } => {
             let (_, cfg) = run_dir::open(&run_dir)?;
-            let (_, rows) = supervisor::outputs::FrameLog::open(&run_dir)?;
+            let (_, rows) = run_folder::outputs::FrameLog::open(&run_dir)?;
             let problems: Vec<String> = run_dir::read_status(&run_dir)
                 .and_then(|s| s.error)
                 .into_iter()
                 .collect();
-            supervisor::report::write(&run_dir, &cfg, &rows, &problems)?;
-            println!("{}", supervisor::report::report_path(&run_dir).display());
+            evaluation::report::write(&run_dir, &cfg, &rows, &problems)?;
+            println!("{}", evaluation::report::report_path(&run_dir).display());
             Ok(ExitCode::SUCCESS)
         }
         Command::Eval {
@@ -389,14 +389,14 @@ fn vocab(action: VocabAction) -> Result<ExitCode> {
                 levels,
                 seed,
             };
-            let t = supervisor::vocab::train(&images, &out, opts)?;
+            let t = evaluation::vocab::train(&images, &out, opts)?;
             eprintln!(
                 "vocab: {} words from {} features of {} images in {:.1} s",
                 t.words, t.features, t.images, t.seconds
             );
             println!("{}  {}", t.sha256, out.display());
         }
-        VocabAction::Info { file } => println!("{}", supervisor::vocab::info(&file)?),
+        VocabAction::Info { file } => println!("{}", evaluation::vocab::info(&file)?),
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -490,7 +490,7 @@ fn report_run(summary: &RunSummary) -> ExitCode {
         }
         eprintln!(
             "report: {}",
-            supervisor::report::report_path(&summary.run_dir).display()
+            evaluation::report::report_path(&summary.run_dir).display()
         );
     }
     println!("{}", summary.run_dir.display());
@@ -545,9 +545,9 @@ fn compare_segmenters_on(
     limit: Option<usize>,
     json: bool,
 ) -> Result<()> {
-    use supervisor::mask_eval::Subset;
+    use evaluation::mask_eval::Subset;
     let rows =
-        supervisor::mask_eval::compare_segmenters(dataset, cfg, keyframe_every, min_px, limit)?;
+        evaluation::mask_eval::compare_segmenters(dataset, cfg, keyframe_every, min_px, limit)?;
     if json {
         println!("{}", serde_json::to_string_pretty(&rows)?);
         return Ok(());
@@ -602,7 +602,7 @@ fn masks_eval(
     json: bool,
     save: Option<&std::path::Path>,
 ) -> Result<()> {
-    let s = supervisor::mask_eval::evaluate(dataset, cfg, keyframe_every, min_px, limit, save)?;
+    let s = evaluation::mask_eval::evaluate(dataset, cfg, keyframe_every, min_px, limit, save)?;
     if json {
         println!("{}", serde_json::to_string_pretty(&s)?);
         return Ok(());
@@ -628,11 +628,11 @@ fn masks_eval(
     );
     println!(
         "propagator, people the segmenter found (keyframe IoU >= {})  mean IoU {:.3}",
-        supervisor::mask_eval::FOUND_IOU,
+        evaluation::mask_eval::FOUND_IOU,
         s.propagator_iou_found
     );
-    let cause = |name: &str, c: &supervisor::mask_eval::ByCause| {
-        let part = |label: &str, x: &supervisor::mask_eval::Subset| {
+    let cause = |name: &str, c: &evaluation::mask_eval::ByCause| {
+        let part = |label: &str, x: &evaluation::mask_eval::Subset| {
             if x.samples == 0 {
                 format!("{label} -")
             } else {
@@ -661,8 +661,8 @@ fn masks_eval(
     println!(
         "people coming into view: {}, masked (IoU >= {}) within {} frames: {} ({:.0} %), later: {}, median delay {:.0} frames",
         e.count,
-        supervisor::mask_eval::MASKED_IOU,
-        supervisor::mask_eval::ENTRY_FRAMES,
+        evaluation::mask_eval::MASKED_IOU,
+        evaluation::mask_eval::ENTRY_FRAMES,
         e.masked_in_time,
         100.0 * e.in_time_share(),
         e.masked_later,
@@ -709,7 +709,7 @@ fn eval(
         std::fs::write(path, &text).with_context(|| format!("cannot write {}", path.display()))?;
     }
     if let Some(path) = plot {
-        let (img, _) = supervisor::plots::trajectory(
+        let (img, _) = evaluation::plots::trajectory(
             &s.positions,
             &[],
             &format!(
@@ -719,7 +719,7 @@ fn eval(
                 s.ate_rmse_m
             ),
         )?;
-        supervisor::plots::save(&img, path)?;
+        evaluation::plots::save(&img, path)?;
     }
     if json {
         println!("{text}");

@@ -33,10 +33,10 @@ use std::time::Duration;
 use anyhow::{bail, Context, Result};
 use clap::Parser;
 use pipeline::config::{ClockMode, PipelineConfig};
+use run_folder::outputs::{FrameLog, FrameRow};
+use run_folder::run_dir;
 use serde::Serialize;
-use supervisor::outputs::{FrameLog, FrameRow};
 use supervisor::run::execute;
-use supervisor::run_dir;
 
 #[derive(Debug, Parser)]
 #[command(about = "Real-time pipeline: tracked fps, drops, latency and ATE, with and without load")]
@@ -466,7 +466,7 @@ fn run_once(
     let killed = kills.killed;
     let summary = summary?;
     let (_, rows) = FrameLog::open(&dir)?;
-    let outages = supervisor::outages::slam_outages(&dir, &rows);
+    let outages = run_folder::outages::slam_outages(&dir, &rows);
     let report = summary.report.as_ref();
     let stage = |name: &str, p99: bool| {
         report.and_then(|r| {

@@ -16,8 +16,8 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context, Result};
 use clap::Parser;
 use pipeline::config::{ClockMode, PipelineConfig};
+use run_folder::run_dir::{self, Status};
 use serde::Serialize;
-use supervisor::run_dir::{self, Status};
 
 #[derive(Debug, Parser)]
 #[command(about = "Real-time soak: RSS per process per minute and the SLAM map's size")]
@@ -281,7 +281,7 @@ fn rss_mb(pid: u32) -> Option<f64> {
 /// Tracked frames so far, and the keyframes and map points of the newest
 /// tracked frame (from the tail of `frames.csv`).
 fn map_size(run_dir: &Path) -> (u64, u64, u64) {
-    let Ok(rows) = supervisor::outputs::read_rows(run_dir) else {
+    let Ok(rows) = run_folder::outputs::read_rows(run_dir) else {
         return (0, 0, 0);
     };
     let tracked = rows.iter().filter(|r| r.is_tracked()).count() as u64;

@@ -24,26 +24,20 @@ use processes::{clean_previous, Service, SvcState};
 
 use crate::children::{service_program, RestartPolicy};
 use crate::external::ExternalStream;
-use crate::latency;
-use crate::mask_record::MaskRecorder;
-use crate::outputs::{write_tum, FrameLog, FrameRow};
-use crate::run_dir;
+use run_folder::latency;
+use run_folder::mask_record::MaskRecorder;
+use run_folder::outputs::{write_tum, FrameLog, FrameRow};
+use run_folder::run_dir;
 use scheduling::ledger::{Arrival, Dropped, Input, Ledger};
 
-/// The SLAM service writes its map here (in the run folder) when stopped.
-pub const MAP_FILE: &str = "map.ply";
-/// Loop closures, one row each (written by the SLAM service as they happen).
-pub const LOOPS_FILE: &str = "loops.csv";
-/// The SLAM's trajectory with its loop corrections applied (written at
-/// stop when a loop closed; `trajectory.txt` has the poses as published).
-pub const CORRECTED_TRAJECTORY_FILE: &str = "trajectory_loop_corrected.txt";
+pub use run_folder::run_dir::{CORRECTED_TRAJECTORY_FILE, LOOPS_FILE, MAP_FILE};
 
 /// How a run ended.
 #[derive(Debug, Clone)]
 pub struct RunSummary {
     pub run_dir: PathBuf,
     /// The report's figures (None when it could not be written).
-    pub report: Option<crate::report::ReportSummary>,
+    pub report: Option<evaluation::report::ReportSummary>,
     pub frames: u64,
     pub tracked: u64,
     /// Real time: frames dropped because a newer one was tracked first.
@@ -624,10 +618,10 @@ fn supervise(sup: &mut Supervisor) -> Result<bool> {
         datasets::source::MaskList::open(&sup.config.source.path),
         listed,
     ) {
-        (Ok(Some(masks)), Some(frames)) => Some(crate::mask_record::Truth {
+        (Ok(Some(masks)), Some(frames)) => Some(run_folder::mask_record::Truth {
             masks,
             timestamps: frames.iter().map(|f| f.timestamp).collect(),
-            ignore: crate::ignore::IgnoreRegions::open(&sup.config.source.path)?,
+            ignore: run_folder::ignore::IgnoreRegions::open(&sup.config.source.path)?,
         }),
         _ => None,
     };
@@ -727,7 +721,7 @@ fn finish_outputs(
     degraded: Vec<String>,
 ) -> Result<RunSummary> {
     let dir = &sup.run_dir;
-    let rows = crate::outputs::read_rows(dir)?;
+    let rows = run_folder::outputs::read_rows(dir)?;
     let tracked = write_tum(&dir.join("trajectory.txt"), &rows, FrameRow::is_tracked)?;
     write_tum(&dir.join("keyframes.txt"), &rows, |r| {
         r.keyframe && r.is_tracked()
@@ -746,7 +740,7 @@ fn finish_outputs(
     )?;
     let table = latency::format_table(&summary);
     // The report never fails a run whose outputs are written.
-    let report = match crate::report::write(dir, &sup.config, &rows, &degraded) {
+    let report = match evaluation::report::write(dir, &sup.config, &rows, &degraded) {
         Ok(r) => Some(r),
         Err(e) => {
             tracing::warn!("cannot write the report: {e:#}");

@@ -18,8 +18,8 @@ use crate::children::{
     describe_exit, is_input_error, process_matches, renice, signal, spawn, RestartDecision,
     RestartPolicy,
 };
-use crate::outputs::write_tum;
-use crate::run_dir::{self, ChildStatus, Status};
+use run_folder::outputs::write_tum;
+use run_folder::run_dir::{self, ChildStatus, Status};
 
 /// What [`Supervisor::watch_children`] found.
 pub(super) struct Reaped {

@@ -16,12 +16,15 @@ use serde::{Deserialize, Serialize};
 use shared_types::StageStamps;
 use slam_core::io::trajectory::Trajectory;
 
+/// One row per frame of the run ([`FrameRow`]).
 pub const FRAMES_CSV: &str = "frames.csv";
 
 /// The fate of one frame.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct FrameRow {
+    /// The frame's sequence number in the run.
     pub seq: u64,
+    /// The dataset's (or camera's) timestamp, seconds.
     pub timestamp: f64,
     /// ok, lost, relocalised, not_initialised, skipped, or dropped (real-time
     /// mode: a newer frame was tracked first).
@@ -31,21 +34,32 @@ pub struct FrameRow {
     pub route: String,
     /// segmenter, propagator, none.
     pub mask_source: String,
+    /// SLAM made this frame a keyframe.
     pub keyframe: bool,
+    /// SLAM asked for the next frame to be segmented (the routing flag).
     pub next_keyframe: bool,
+    /// Camera pose in the world, TUM order: tx ty tz qx qy qz qw.
     pub pose: [f64; 7],
+    /// ORB features extracted.
     pub features: u32,
+    /// Features dropped because they fell on a mask.
     pub features_masked: u32,
+    /// Features dropped by the motion check.
     pub features_moving: u32,
+    /// Features matched to map points that survived the pose optimisation.
     pub inliers: u32,
+    /// Map points in the map after this frame.
     pub map_points: u32,
+    /// Keyframes in the map after this frame.
     pub keyframes: u32,
-    /// SLAM's feature extraction and local mapping time (microseconds).
+    /// SLAM's feature extraction time (microseconds).
     pub extract_us: u32,
+    /// SLAM's local mapping time after this frame (microseconds).
     pub mapping_us: u32,
     /// Tracked by following the last frame's points with optical flow (no
     /// ORB extraction: `services.slam.flow_frames`).
     pub tracked_by_flow: bool,
+    /// When each stage took and handed on the frame.
     pub stamps: StageStamps,
     /// When the supervisor received the Track (end of the frame's path).
     pub track_received_ns: u64,

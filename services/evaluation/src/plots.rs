@@ -18,9 +18,13 @@ use plotters::style::colors::colormaps::ViridisRGB;
 static FONT_BYTES: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSans-subset.ttf");
 const FONT: &str = "sans-serif";
 
+/// The estimate (and the worse of two).
 pub const RED: RGBColor = RGBColor(215, 40, 40);
+/// The ground truth.
 pub const BLUE: RGBColor = RGBColor(40, 90, 215);
+/// A second estimate (loop corrected, propagator).
 pub const GREEN: RGBColor = RGBColor(30, 160, 70);
+/// Reference lines and context.
 pub const GREY: RGBColor = RGBColor(120, 120, 120);
 
 const TITLE_PX: u32 = 22;
@@ -76,6 +80,7 @@ fn draw_legend<'a, 'b: 'a>(
         .map_err(plot_err)
 }
 
+/// Writes a plot as PNG, naming the file when it cannot.
 pub fn save(img: &RgbImage, path: &Path) -> Result<()> {
     img.save(path)
         .with_context(|| format!("cannot write {}", path.display()))
@@ -85,10 +90,13 @@ pub fn save(img: &RgbImage, path: &Path) -> Result<()> {
 /// largest extents, and the largest against the smallest.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Views {
+    /// The two largest extents (axis indices, horizontal then vertical).
     pub first: (usize, usize),
+    /// The largest against the smallest.
     pub second: (usize, usize),
 }
 
+/// Axis index to name.
 pub const AXIS_NAMES: [&str; 3] = ["x", "y", "z"];
 
 impl Views {
@@ -110,6 +118,7 @@ impl Views {
         }
     }
 
+    /// The views in words, for the report.
     pub fn describe(&self) -> String {
         let n = |(a, b): (usize, usize)| format!("{}-{}", AXIS_NAMES[a], AXIS_NAMES[b]);
         format!(
@@ -270,31 +279,45 @@ fn colour_bar(area: &Area<'_>, max: f64) -> Result<()> {
 /// How a series is drawn.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Style {
+    /// Points joined in order.
     Line,
+    /// Points alone.
     Dots,
 }
 
 /// One series of an x-y chart, with its legend name.
 pub struct Series<'a> {
+    /// Legend name.
     pub name: &'a str,
+    /// (x, y) in data units.
     pub points: Vec<(f64, f64)>,
+    /// Its colour.
     pub colour: RGBColor,
+    /// Line or dots.
     pub style: Style,
 }
 
 /// A horizontal reference line (RMSE, median), with its legend name.
 pub struct Level {
+    /// Legend name.
     pub name: String,
+    /// Its y value.
     pub value: f64,
+    /// Its colour.
     pub colour: RGBColor,
 }
 
 /// What an x-y chart shows.
 pub struct Chart<'a> {
+    /// Above the chart.
     pub title: &'a str,
+    /// The x axis label.
     pub x_desc: &'a str,
+    /// The y axis label.
     pub y_desc: &'a str,
+    /// The data.
     pub series: Vec<Series<'a>>,
+    /// Reference lines.
     pub levels: Vec<Level>,
     /// Fixed y range top (IoU: 1.0); None: from the data.
     pub y_max: Option<f64>,
@@ -409,9 +432,13 @@ fn decimals_for(span: f64) -> usize {
 
 /// One latency histogram: a stage's per-frame times.
 pub struct Histogram<'a> {
+    /// The stage's name.
     pub stage: &'a str,
+    /// Its time on each frame, milliseconds.
     pub values_ms: Vec<f64>,
+    /// Median, drawn as a line.
     pub p50_ms: f64,
+    /// 99th percentile, drawn as a line.
     pub p99_ms: f64,
 }
 

@@ -20,13 +20,16 @@ use slam_core::io::trajectory::Trajectory;
 
 mod markdown;
 
-use crate::latency::{self, StageSummary, STAGES};
-use crate::mask_record::{mask_file, read_ious, read_rows, MaskRow, MIN_PERSON_PX};
-use crate::outputs::FrameRow;
 use crate::plots::{self, Chart, Histogram, Level, Series, Style, Views, BLUE, GREEN, GREY, RED};
+use run_folder::latency::{self, StageSummary, STAGES};
+use run_folder::mask_record::{mask_file, read_ious, read_rows, MaskRow, MIN_PERSON_PX};
+use run_folder::outputs::FrameRow;
 
+/// The report, in the run folder.
 pub const REPORT_FILE: &str = "report.md";
+/// The report's figures for programs ([`ReportSummary`]).
 pub const EVAL_FILE: &str = "eval.json";
+/// The report's plots (PNG).
 pub const PLOTS_DIR: &str = "plots";
 
 /// The world frame of the trajectories and the map, in words.
@@ -37,31 +40,41 @@ pub const WORLD_FRAME: &str = "Poses (`trajectory.txt`, `frames.csv`) and `map.p
 pub struct MaskScores {
     /// Mean per-person IoU of the segmenter's masks (keyframes).
     pub segmenter_iou: Option<f64>,
+    /// Person-frames behind it.
     pub segmenter_samples: usize,
     /// Mean per-person IoU of the propagator's masks.
     pub propagator_iou: Option<f64>,
+    /// Person-frames behind it.
     pub propagator_samples: usize,
     /// Mean per-person IoU over every frame with a person, whatever the
     /// frame was routed to (a frame without masks scores 0).
     pub all_frames_iou: Option<f64>,
+    /// Person-frames behind it.
     pub all_frames_samples: usize,
 }
 
 /// The figures of a report (also returned to callers such as the ablation).
 #[derive(Debug, Clone, Serialize)]
 pub struct ReportSummary {
+    /// Frames recorded.
     pub frames: usize,
+    /// Frames tracked (ok or relocalised).
     pub tracked: usize,
+    /// Accuracy against the ground truth, when the input has one.
     pub eval: Option<EvalSummary>,
+    /// Mask quality, when the input has ground-truth masks.
     pub masks: Option<MaskScores>,
+    /// Per-stage latency.
     pub latency: Vec<StageSummary>,
 }
 
 impl ReportSummary {
+    /// Tracked frames over recorded frames.
     pub fn tracked_fraction(&self) -> f64 {
         self.tracked as f64 / self.frames.max(1) as f64
     }
 
+    /// A stage's median latency, milliseconds (None when no frame had it).
     pub fn stage_p50(&self, stage: &str) -> Option<f64> {
         self.latency
             .iter()
@@ -251,7 +264,7 @@ fn mask_figures(
     let truth = MaskList::open(dataset).ok().flatten();
     let (scores, ious) = match &truth {
         Some(t) => {
-            let ignore = crate::ignore::IgnoreRegions::open(dataset)?;
+            let ignore = run_folder::ignore::IgnoreRegions::open(dataset)?;
             let (s, i) = mask_scores(run_dir, rows, &mask_rows, t, &ignore)?;
             (Some(s), i)
         }
@@ -307,7 +320,8 @@ fn mask_figures(
 /// Where in `e`'s associated poses each loop of `loops.csv` closed (the
 /// pose nearest its timestamp).
 fn loop_indices(run_dir: &Path, e: &EvalSummary) -> Vec<usize> {
-    let stamps = slam_backend::loops_csv::timestamps(&run_dir.join(crate::run::LOOPS_FILE));
+    let stamps =
+        slam_backend::loops_csv::timestamps(&run_dir.join(run_folder::run_dir::LOOPS_FILE));
     stamps
         .unwrap_or_default()
         .into_iter()
@@ -365,7 +379,7 @@ fn mask_scores(
     rows: &[FrameRow],
     mask_rows: &[MaskRow],
     truth: &MaskList,
-    ignore: &crate::ignore::IgnoreRegions,
+    ignore: &run_folder::ignore::IgnoreRegions,
 ) -> Result<(MaskScores, Vec<FrameIou>)> {
     let masked: std::collections::HashSet<u64> = mask_rows.iter().map(|m| m.seq).collect();
     let scored = read_ious(run_dir)?;

@@ -31,23 +31,29 @@ use pipeline::progress::Progress;
 use pipeline::views::DepthImage;
 use propagation::newcomers::NewcomerCheck;
 
-use crate::ignore::IgnoreRegions;
 use propagation::propagate::{LkPropagator, PropagatorParams};
+use run_folder::ignore::IgnoreRegions;
 use scenes::truth::{instance_ious, InstanceIou};
 use segmentation::exports::YoloFamily;
 use segmentation::onnx::{YoloSeg, YoloSettings};
 use serde::Serialize;
 
+/// What `dynslam masks-eval` measured on one sequence.
 #[derive(Debug, Clone, Serialize)]
 pub struct MaskScores {
+    /// Frames evaluated.
     pub frames: usize,
+    /// A keyframe (segmented) every this many frames; the rest propagated.
     pub keyframe_every: usize,
+    /// People smaller than this (pixels) are not scored.
     pub min_px: usize,
     /// Mean IoU of the segmenter on keyframes (over scored people).
     pub segmenter_iou: f64,
+    /// Person-frames behind `segmenter_iou`.
     pub segmenter_samples: usize,
     /// Mean IoU of the propagator on all frames between keyframes.
     pub propagator_iou: f64,
+    /// Person-frames behind `propagator_iou`.
     pub propagator_samples: usize,
     /// Mean propagator IoU by distance from the keyframe (index 0: 1 frame after).
     pub propagator_iou_by_offset: Vec<f64>,
@@ -60,6 +66,7 @@ pub struct MaskScores {
     pub propagator_iou_found: f64,
     /// The segmenter's and the propagator's scores by cause.
     pub segmenter_by_cause: ByCause,
+    /// The propagator's, likewise.
     pub propagator_by_cause: ByCause,
     /// Whether ignore regions (`ignore.png` / `ignore.txt`) were applied.
     pub ignore_regions: bool,
@@ -67,14 +74,18 @@ pub struct MaskScores {
     pub early_segments: usize,
     /// People coming into view, and how soon they were masked.
     pub entries: Entries,
+    /// The segmenter's median time per keyframe, milliseconds.
     pub segmenter_ms_p50: f64,
+    /// The propagator's median time per frame, milliseconds.
     pub propagator_ms_p50: f64,
 }
 
 /// Mean IoU over a subset of the scored person-frames.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct Subset {
+    /// Mean IoU.
     pub iou: f64,
+    /// Person-frames behind it.
     pub samples: usize,
     #[serde(skip)]
     sum: f64,
@@ -98,10 +109,15 @@ impl Subset {
 /// it recorded that), `plain` (none of these).
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct ByCause {
+    /// Not on the prompting keyframe.
     pub entered: Subset,
+    /// Touching the image border.
     pub border_cut: Subset,
+    /// Small in the image.
     pub small: Subset,
+    /// Partly hidden.
     pub occluded: Subset,
+    /// None of the above.
     pub plain: Subset,
 }
 
@@ -295,9 +311,13 @@ fn mean(v: &[f64]) -> f64 {
 /// (`masks-eval --compare-segmenters`).
 #[derive(Debug, Clone, Serialize)]
 pub struct SegmenterScores {
+    /// The model (yolov8n-seg, yolo11n-seg, ...).
     pub network: &'static str,
+    /// The execution provider it ran on.
     pub backend: &'static str,
+    /// Its square input size, pixels.
     pub input_size: usize,
+    /// What it scored.
     pub scores: MaskScores,
 }
 

@@ -15,10 +15,15 @@ use slam_core::SlamParams;
 /// What training read and made.
 #[derive(Debug)]
 pub struct Trained {
+    /// Images read.
     pub images: usize,
+    /// ORB descriptors clustered.
     pub features: usize,
+    /// Leaf words of the vocabulary.
     pub words: usize,
+    /// SHA-256 of the written file.
     pub sha256: String,
+    /// Training time.
     pub seconds: f64,
 }
 

@@ -68,16 +68,24 @@ pub fn stage_ms(r: &FrameRow) -> [Option<f64>; STAGES.len()] {
     ]
 }
 
+/// One stage's latency over a run (one row of the report's latency table).
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct StageSummary {
+    /// The stage's name (one of `STAGES`).
     pub stage: String,
+    /// How many frames had this stage.
     pub count: usize,
+    /// Median, milliseconds.
     pub p50_ms: f64,
+    /// 90th percentile, milliseconds.
     pub p90_ms: f64,
+    /// 99th percentile, milliseconds.
     pub p99_ms: f64,
+    /// The slowest frame, milliseconds.
     pub max_ms: f64,
 }
 
+/// Per-stage latency percentiles over the frames that went through each stage.
 pub fn summarize(rows: &[FrameRow]) -> Vec<StageSummary> {
     let per_row: Vec<[Option<f64>; STAGES.len()]> = rows.iter().map(stage_ms).collect();
     STAGES

@@ -10,10 +10,10 @@ use slam_core::eval::{evaluate, Alignment, EvalOptions, EvalSummary};
 use slam_core::io::trajectory::Trajectory;
 
 use super::{MaskFigures, EVAL_FILE, WORLD_FRAME};
-use crate::latency::{self, StageSummary};
-use crate::mask_record::MIN_PERSON_PX;
-use crate::outputs::FrameRow;
 use crate::plots::Views;
+use run_folder::latency::{self, StageSummary};
+use run_folder::mask_record::MIN_PERSON_PX;
+use run_folder::outputs::FrameRow;
 
 /// Everything the text says, computed before it is written.
 pub(super) struct Figures<'a> {
@@ -77,7 +77,7 @@ fn header(md: &mut String, f: &Figures) -> Result<()> {
         writeln!(md)?;
     }
     writeln!(md, "Dataset: `{}`  ", dataset.display())?;
-    let camera = crate::run_dir::read_info(run_dir)
+    let camera = run_folder::run_dir::read_info(run_dir)
         .map(|info| info.camera)
         .unwrap_or_default();
     let c = &config.camera;
@@ -111,7 +111,8 @@ fn header(md: &mut String, f: &Figures) -> Result<()> {
             ""
         }
     )?;
-    let outages = crate::outages::outages_line(&crate::outages::slam_outages(run_dir, rows));
+    let outages =
+        run_folder::outages::outages_line(&run_folder::outages::slam_outages(run_dir, rows));
     for line in [
         restarts_line(run_dir),
         outages,
@@ -134,7 +135,7 @@ fn trajectory(md: &mut String, f: &Figures) -> Result<()> {
     if monocular {
         writeln!(md, "Monocular: the map's unit is its own (the first keyframe's median scene depth is 1), so the accuracy figures align with a Sim(3) (rotation, translation and scale) and give the scale found.\n")?;
     }
-    let starts = crate::run_dir::slam_starts(run_dir);
+    let starts = run_folder::run_dir::slam_starts(run_dir);
     if config.services.slam.backend == "orb-rgbd" {
         let list = |from_checkpoint: bool| {
             starts
@@ -277,14 +278,14 @@ fn files(md: &mut String, run_dir: &Path) -> Result<()> {
     writeln!(md, "## Files\n")?;
     writeln!(md, "- `trajectory.txt`, `keyframes.txt`: TUM format (timestamp tx ty tz qx qy qz qw), world from camera (camera-to-world), the poses as published live")?;
     if run_dir
-        .join(crate::run::CORRECTED_TRAJECTORY_FILE)
+        .join(run_folder::run_dir::CORRECTED_TRAJECTORY_FILE)
         .is_file()
     {
-        writeln!(md, "- `{}`: the same frames as the final map stands, loop corrections applied (TUM format)", crate::run::CORRECTED_TRAJECTORY_FILE)?;
+        writeln!(md, "- `{}`: the same frames as the final map stands, loop corrections applied (TUM format)", run_folder::run_dir::CORRECTED_TRAJECTORY_FILE)?;
     }
     writeln!(md, "- `frames.csv`: one row per frame (state, route, pose, features, features removed by masks, inliers, stage timestamps)")?;
     writeln!(md, "- `masks.csv`: one row per set of masks SLAM got (source, instances, masked pixels); `masks/`: their label images (0 background, i+1 instance i) as `run.save_masks` keeps them (default: the segmenter's); `mask_iou.csv`: each set's per-person IoU where the dataset has ground-truth masks")?;
-    let map = run_dir.join(crate::run::MAP_FILE);
+    let map = run_dir.join(run_folder::run_dir::MAP_FILE);
     match slam_core::io::ply::read_ply(&map) {
         Ok(points) => writeln!(
             md,
@@ -296,7 +297,7 @@ fn files(md: &mut String, run_dir: &Path) -> Result<()> {
             "- no `map.ply` (the SLAM backend keeps no map, or it was not stopped cleanly)"
         )?,
     }
-    let loops = run_dir.join(crate::run::LOOPS_FILE);
+    let loops = run_dir.join(run_folder::run_dir::LOOPS_FILE);
     match slam_backend::loops_csv::count_rows(&loops) {
         Ok(0) if !loops.exists() => writeln!(
             md,
@@ -318,7 +319,7 @@ fn files(md: &mut String, run_dir: &Path) -> Result<()> {
 /// "Restarts: 3 (segmenter 2, slam 1; restarts.log)" for a run whose
 /// services were restarted; None for one without restarts.
 fn restarts_line(run_dir: &Path) -> Option<String> {
-    let log = std::fs::read_to_string(run_dir.join(crate::run_dir::RESTARTS_FILE)).ok()?;
+    let log = std::fs::read_to_string(run_dir.join(run_folder::run_dir::RESTARTS_FILE)).ok()?;
     let mut by_service: Vec<(String, usize)> = Vec::new();
     for service in log.lines().filter_map(|l| l.split_whitespace().next()) {
         match by_service.iter_mut().find(|(s, _)| s == service) {
@@ -332,7 +333,7 @@ fn restarts_line(run_dir: &Path) -> Option<String> {
         format!(
             "Restarts: {total} ({}; `{}` says when and how each died)",
             each.join(", "),
-            crate::run_dir::RESTARTS_FILE
+            run_folder::run_dir::RESTARTS_FILE
         )
     })
 }
@@ -343,7 +344,7 @@ fn remote_line(run_dir: &Path, config: &PipelineConfig) -> Option<String> {
     if config.services.segmenter.location != "remote" {
         return None;
     }
-    let counts = crate::mask_record::origin_counts(run_dir, "segmenter");
+    let counts = run_folder::mask_record::origin_counts(run_dir, "segmenter");
     let n = |origin: &str| counts.get(origin).copied().unwrap_or(0);
     Some(format!(
         "Remote segmenter (run `{}`, fallback {}): {} sets of masks made remotely, {} by the local fallback; {} segmenter frames went without fresh segmenter masks (no worker answered){}",
@@ -368,12 +369,12 @@ fn corrected_trajectory_line(
     dataset: &Path,
     alignment: Alignment,
 ) -> Option<String> {
-    let path = run_dir.join(crate::run::CORRECTED_TRAJECTORY_FILE);
+    let path = run_dir.join(run_folder::run_dir::CORRECTED_TRAJECTORY_FILE);
     if !path.is_file() {
         return None;
     }
     let gt = Trajectory::load_tum(&dataset.join("groundtruth.txt")).ok()?;
-    let name = crate::run::CORRECTED_TRAJECTORY_FILE;
+    let name = run_folder::run_dir::CORRECTED_TRAJECTORY_FILE;
     Some(
         match Trajectory::load_tum(&path)
             .map_err(anyhow::Error::from)
@@ -409,7 +410,7 @@ mod tests {
             "slam pid 11 killed by SIGKILL next_seq 41",
             "segmenter pid 12 killed by SIGKILL next_seq 77",
         ] {
-            crate::run_dir::log_restart(&dir, line).unwrap();
+            run_folder::run_dir::log_restart(&dir, line).unwrap();
         }
         let line = restarts_line(&dir).unwrap();
         assert!(

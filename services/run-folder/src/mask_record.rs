@@ -23,8 +23,11 @@ use pipeline::config::SaveMasks;
 use pipeline::views::MasksView;
 use shared_types::MaskSource;
 
+/// The saved masks, `masks/<seq>.png` (`run.save_masks`).
 pub const MASKS_DIR: &str = "masks";
+/// One row per set of masks that reached SLAM ([`MaskRow`]).
 pub const MASKS_CSV: &str = "masks.csv";
+/// Per-person IoU against the dataset's ground truth, when it has some ([`PersonIou`]).
 pub const MASK_IOU_CSV: &str = "mask_iou.csv";
 const HEADER: &str = "seq,source,instances,masked_px,file,origin";
 const IOU_HEADER: &str = "seq,source,iou";
@@ -46,12 +49,16 @@ struct Job {
 
 /// The dataset's ground-truth masks and the timestamp of each frame.
 pub struct Truth {
+    /// The ground-truth mask files.
     pub masks: MaskList,
+    /// Each frame's timestamp, by sequence number.
     pub timestamps: Vec<f64>,
     /// Left out of every score (see [`crate::ignore`]).
     pub ignore: crate::ignore::IgnoreRegions,
 }
 
+/// Writes `masks.csv`, the mask files and `mask_iou.csv` on a thread of its
+/// own, so the run loop never waits on a PNG encoder or the disk.
 pub struct MaskRecorder {
     tx: Option<SyncSender<Job>>,
     writer: Option<JoinHandle<Result<()>>>,
@@ -81,6 +88,7 @@ fn open_csv(run_dir: &Path, name: &str, header: &str) -> Result<std::fs::File> {
 }
 
 impl MaskRecorder {
+    /// Creates the files in `run_dir` and starts the writer thread.
     pub fn start(run_dir: &Path, save: SaveMasks, truth: Option<Truth>) -> Result<Self> {
         let dir = run_dir.join(MASKS_DIR);
         std::fs::create_dir_all(&dir)
@@ -211,9 +219,13 @@ impl MaskRecorder {
 /// One row of `masks.csv`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MaskRow {
+    /// The frame.
     pub seq: u64,
+    /// segmenter or propagator.
     pub source: String,
+    /// Objects in the masks.
     pub instances: u32,
+    /// Pixels covered by any mask.
     pub masked_px: u64,
     /// Whether `masks/<seq>.png` was written (`run.save_masks`).
     pub saved: bool,
@@ -275,8 +287,11 @@ pub fn origin_counts(run_dir: &Path, source: &str) -> std::collections::BTreeMap
 /// Per-person IoU of one set of masks against the ground truth.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PersonIou {
+    /// The frame.
     pub seq: u64,
+    /// segmenter or propagator.
     pub source: String,
+    /// Intersection over union with the person's ground-truth mask.
     pub iou: f64,
 }
 

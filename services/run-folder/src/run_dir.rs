@@ -7,20 +7,34 @@ use anyhow::{bail, Context, Result};
 use pipeline::config::PipelineConfig;
 use serde::{Deserialize, Serialize};
 
+/// The resolved configuration the run uses (a resume reads it back).
 pub const CONFIG_FILE: &str = "config.toml";
+/// The run's identity ([`RunInfo`]).
 pub const RUN_FILE: &str = "run.json";
+/// Live state for people and tests ([`Status`]).
 pub const STATUS_FILE: &str = "status.json";
+/// One line per service restart.
 pub const RESTARTS_FILE: &str = "restarts.log";
 /// One line per `dynslam resume` of the run: `next_seq N`.
 pub const RESUMES_FILE: &str = "resumes.log";
 /// One line per start of the SLAM service after the first frame.
 pub const SLAM_STARTS_FILE: &str = "slam-starts.log";
+/// The SLAM service writes its map here (in the run folder) when stopped.
+pub const MAP_FILE: &str = "map.ply";
+/// Loop closures, one row each (written by the SLAM service as they happen).
+pub const LOOPS_FILE: &str = "loops.csv";
+/// The SLAM's trajectory with its loop corrections applied (written at
+/// stop when a loop closed; `trajectory.txt` has the poses as published).
+pub const CORRECTED_TRAJECTORY_FILE: &str = "trajectory_loop_corrected.txt";
 
 /// Identity of a run, written once at its start.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct RunInfo {
+    /// Names the run's shared-memory services.
     pub run_id: String,
+    /// The input (dataset folder, camera, or the rendered default scene).
     pub dataset: PathBuf,
+    /// When the run was created (Unix time, seconds).
     pub created_unix_s: u64,
     /// The camera the run uses and why ("tum-fr2: dataset folder name ...").
     #[serde(default)]
@@ -31,24 +45,34 @@ pub struct RunInfo {
 /// atomically whenever something changes.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
 pub struct Status {
+    /// The run ([`RunInfo::run_id`]).
     pub run_id: String,
+    /// The supervisor writing this file.
     pub supervisor_pid: u32,
     /// Restarts of services by supervisors of this run (kept across resumes).
     pub restarts: u64,
+    /// Frames recorded so far.
     pub frames_done: u64,
+    /// Frames the input holds (None for a live camera).
     pub frames_total: Option<u64>,
+    /// Each service's process.
     pub children: Vec<ChildStatus>,
     /// "running", "completed", "interrupted", "failed".
     pub state: String,
+    /// Why the run failed.
     pub error: Option<String>,
 }
 
+/// One service process of a run, as `status.json` shows it.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct ChildStatus {
+    /// The service's name (camera-reader, segmenter, ...).
     pub service: String,
+    /// Its process id while it runs.
     pub pid: Option<u32>,
     /// "starting", "ready", "backoff", "failed", "stopped".
     pub state: String,
+    /// Times it was restarted in this run.
     pub restarts: u64,
 }
 
@@ -62,6 +86,7 @@ pub struct RunLock {
 }
 
 impl RunLock {
+    /// Takes the run id's lock, or says which process holds it.
     pub fn acquire(run_id: &str) -> Result<Self> {
         use std::io::{Read, Seek, Write};
         use std::os::fd::AsRawFd;
@@ -171,6 +196,7 @@ pub fn read_info(dir: &Path) -> Result<RunInfo> {
     serde_json::from_str(&text).with_context(|| format!("{}: malformed", info_path.display()))
 }
 
+/// The run's `status.json`, if it has a readable one.
 pub fn read_status(dir: &Path) -> Option<Status> {
     let text = std::fs::read_to_string(dir.join(STATUS_FILE)).ok()?;
     serde_json::from_str(&text).ok()
@@ -253,6 +279,7 @@ pub fn slam_starts(dir: &Path) -> Vec<SlamStart> {
         .collect()
 }
 
+/// How many service restarts the run has logged.
 pub fn restart_count(dir: &Path) -> u64 {
     std::fs::read_to_string(dir.join(RESTARTS_FILE))
         .map(|t| t.lines().filter(|l| !l.trim().is_empty()).count() as u64)

@@ -96,6 +96,8 @@ fn no_crate_depends_on_a_service_crate() {
         "datasets",
         "run-folder",
         "evaluation",
+        "provision",
+        "onnx-runtime",
         "slam-core",
         "scheduling",
         "pipeline",
@@ -127,4 +129,35 @@ fn the_manifest_reader_sees_every_table() {
     let manifest = "[package]\nname = \"x\"\n[dependencies]\na.workspace = true\nb-c = { version = \"1\" }\n# c = 1\n[dev-dependencies]\nd = \"1\"\n[target.'cfg(unix)'.dependencies]\ne = \"1\"\n[features]\nf = []\n";
     let deps: Vec<String> = dependencies(manifest).into_iter().collect();
     assert_eq!(deps, ["a", "b-c", "d", "e"]);
+}
+
+/// The libraries that do their work without the IPC platform (`pipeline`:
+/// iceoryx2 services, the service runtime) stay free of it, so a tool or
+/// another program can use them without the pipeline's transport: the
+/// model runtime, the dataset readers, the timing rules, the SLAM core.
+#[test]
+fn libraries_without_ipc_do_not_depend_on_the_pipeline() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let all = crates(root);
+    let deps_of = |name: &str| -> BTreeSet<String> {
+        let (_, dir) = all.iter().find(|(n, _)| n == name).unwrap();
+        dependencies(&std::fs::read_to_string(dir.join("Cargo.toml")).unwrap())
+    };
+    let ours: BTreeSet<&str> = all.iter().map(|(n, _)| n.as_str()).collect();
+    for library in ["provision", "onnx-runtime", "datasets", "scheduling", "slam-core"] {
+        // Every crate of ours it reaches, through any dependency table.
+        let mut reached = BTreeSet::new();
+        let mut todo = vec![library.to_string()];
+        while let Some(name) = todo.pop() {
+            for dep in deps_of(&name) {
+                if ours.contains(dep.as_str()) && reached.insert(dep.clone()) {
+                    todo.push(dep);
+                }
+            }
+        }
+        assert!(
+            !reached.contains("pipeline"),
+            "{library} reaches the IPC platform `pipeline` (through {reached:?})"
+        );
+    }
 }

@@ -2,7 +2,7 @@
 //! provisioned shared library loaded once per process, the execution
 //! providers the configuration asks for, sessions on verified model files and
 //! the check that a file has the inputs and outputs a backend needs. Every
-//! failure a user can fix is a [`pipeline::runtime::InputError`] naming the
+//! failure a user can fix is a [`InputError`] naming the
 //! file or key.
 
 #![deny(missing_docs)]
@@ -13,9 +13,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use anyhow::{anyhow, Result};
 use ort::ep::ExecutionProviderDispatch;
 use ort::session::Session;
-use pipeline::config::{OnnxRuntimeConfig, Provider};
-use pipeline::provision::{locate_model, locate_onnxruntime, verify};
-use pipeline::runtime::InputError;
+use provision::{
+    locate_model, locate_onnxruntime, verify, InputError, OnnxRuntimeConfig, Provider,
+};
 
 /// Locates a model file and checks its sha256; failures are input errors.
 pub fn verified_model(file: &str, sha256: &str, configured: Option<&Path>) -> Result<PathBuf> {

@@ -6,8 +6,8 @@
 
 use std::path::{Path, PathBuf};
 
-use pipeline::config::{OnnxRuntimeConfig, Provider};
-use pipeline::provision::ORT_CACHE;
+use provision::ORT_CACHE;
+use provision::{OnnxRuntimeConfig, Provider};
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")

@@ -15,8 +15,11 @@ pub mod clock;
 pub mod config;
 pub mod mask_worker;
 pub mod progress;
-pub mod provision;
 pub mod runtime;
 pub mod stats;
 pub mod transport;
 pub mod views;
+
+/// Finding and checking model files and the ONNX Runtime library (its own
+/// crate, so the model crates use it without the IPC platform).
+pub use ::provision;

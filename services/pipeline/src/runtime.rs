@@ -37,9 +37,7 @@ pub struct ServiceArgs {
 
 /// An error caused by input a restart cannot fix; exits with
 /// [`exit_code::INPUT`].
-#[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct InputError(pub String);
+pub use provision::InputError;
 
 /// Everything a service needs after the common start-up.
 pub struct ServiceContext {

@@ -111,58 +111,9 @@ impl Default for CameraConfig {
     }
 }
 
-/// The ONNX Runtime shared library the model backends load.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields, default)]
-pub struct OnnxRuntimeConfig {
-    /// Path of `libonnxruntime.so`; default: `$ORT_DYLIB_PATH`, then the
-    /// `just setup` cache.
-    pub library: Option<PathBuf>,
-    /// Expected sha256 of the library (empty: not checked).
-    pub sha256: String,
-    /// Execution providers in order of preference. One the library lacks is
-    /// skipped with a warning when `cpu` is listed, an error otherwise.
-    pub providers: Vec<Provider>,
-    /// Let the intra-op thread pool spin while waiting for work. Off: on a
-    /// loaded robot computer a spinning pool burns the cores the SLAM needs
-    /// (measured: the segmenter at 0.57x the CPU and 0.57x the p50 latency
-    /// with spinning off on the loaded 2-core machine).
-    pub spin: bool,
-}
-
-/// An ONNX Runtime execution provider (`[onnxruntime] providers`).
-#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
-#[serde(rename_all = "lowercase")]
-pub enum Provider {
-    /// ONNX Runtime's own CPU kernels (every build has them).
-    Cpu,
-    /// NVIDIA CUDA (a GPU build of ONNX Runtime, e.g. the onnxruntime-gpu wheel or JetPack's).
-    Cuda,
-    /// NVIDIA TensorRT (a TensorRT-enabled build).
-    #[serde(rename = "tensorrt")]
-    TensorRt,
-}
-
-impl Provider {
-    pub fn as_str(&self) -> &'static str {
-        match self {
-            Provider::Cpu => "cpu",
-            Provider::Cuda => "cuda",
-            Provider::TensorRt => "tensorrt",
-        }
-    }
-}
-
-impl Default for OnnxRuntimeConfig {
-    fn default() -> Self {
-        Self {
-            library: None,
-            sha256: "fc44112fbe06d7d689c57e11d3862031f64711007e4ee020f8eed5185fd2c1d3".into(),
-            providers: vec![Provider::Cpu],
-            spin: false,
-        }
-    }
-}
+/// The ONNX Runtime settings (`[onnxruntime]`); their type lives with the
+/// code that finds and checks the library, so the model crates need no IPC.
+pub use provision::{OnnxRuntimeConfig, Provider};
 
 /// How frames are clocked through the pipeline (its timing rules live in
 /// the scheduling crate).

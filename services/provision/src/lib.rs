@@ -1,5 +1,6 @@
+#![deny(missing_docs)]
 //! Locating and verifying the files models need: model weights and the ONNX
-//! Runtime shared library. Nothing is ever downloaded here: `just setup`
+//! Runtime shared library (and its settings, [`OnnxRuntimeConfig`]). Nothing is ever downloaded here: `just setup`
 //! provisions the library from the PyPI wheel; weights come from a path.
 //! Every file is checked against the sha256 in the configuration, and every
 //! failure says which file, where it was looked for and how to provide it.
@@ -7,6 +8,7 @@
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
+use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
 /// Environment variable naming a folder of model files.
@@ -19,20 +21,103 @@ pub const ORT_CACHE: &str = ".cache/onnxruntime/libonnxruntime.so.1.31.1";
 /// (the segmenter at other input sizes), relative to the repo.
 pub const DERIVED_MODELS: &str = ".cache/models";
 
+/// Why a file a model needs could not be had.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum ProvisionError {
+    /// No model file where it was looked for.
     #[error("model file {file} not found; looked in: {looked}. Put it in one of these places, set {MODELS_ENV} to its folder, or set `model_path` in the config")]
-    ModelMissing { file: String, looked: String },
+    ModelMissing {
+        /// The file name.
+        file: String,
+        /// The places looked in.
+        looked: String,
+    },
+    /// No ONNX Runtime library where it was looked for.
     #[error("ONNX Runtime library not found; looked in: {looked}. Run `just setup` (it extracts it from the PyPI wheel onnxruntime==1.31.1) or set {ORT_ENV}")]
-    RuntimeMissing { looked: String },
+    RuntimeMissing {
+        /// The places looked in.
+        looked: String,
+    },
+    /// A file whose sha256 is not the configured one.
     #[error("{path}: sha256 is {found}, the configuration expects {expected}; the file is corrupt or a different version")]
     HashMismatch {
+        /// The file.
         path: PathBuf,
+        /// The configured sha256.
         expected: String,
+        /// The file's.
         found: String,
     },
+    /// A file that could not be read.
     #[error("{path}: cannot read: {message}")]
-    Unreadable { path: PathBuf, message: String },
+    Unreadable {
+        /// The file.
+        path: PathBuf,
+        /// What the system said.
+        message: String,
+    },
+}
+
+/// An error caused by input a restart cannot fix (a missing or corrupt model
+/// or library, a bad setting): a service that fails with it exits with the
+/// input exit code (`pipeline::runtime::exit_code::INPUT`), and the
+/// supervisor reports it instead of restarting the service.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct InputError(pub String);
+
+/// The ONNX Runtime shared library the model backends load.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct OnnxRuntimeConfig {
+    /// Path of `libonnxruntime.so`; default: `$ORT_DYLIB_PATH`, then the
+    /// `just setup` cache.
+    pub library: Option<PathBuf>,
+    /// Expected sha256 of the library (empty: not checked).
+    pub sha256: String,
+    /// Execution providers in order of preference. One the library lacks is
+    /// skipped with a warning when `cpu` is listed, an error otherwise.
+    pub providers: Vec<Provider>,
+    /// Let the intra-op thread pool spin while waiting for work. Off: on a
+    /// loaded robot computer a spinning pool burns the cores the SLAM needs
+    /// (measured: the segmenter at 0.57x the CPU and 0.57x the p50 latency
+    /// with spinning off on the loaded 2-core machine).
+    pub spin: bool,
+}
+
+/// An ONNX Runtime execution provider (`[onnxruntime] providers`).
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum Provider {
+    /// ONNX Runtime's own CPU kernels (every build has them).
+    Cpu,
+    /// NVIDIA CUDA (a GPU build of ONNX Runtime, e.g. the onnxruntime-gpu wheel or JetPack's).
+    Cuda,
+    /// NVIDIA TensorRT (a TensorRT-enabled build).
+    #[serde(rename = "tensorrt")]
+    TensorRt,
+}
+
+impl Provider {
+    /// Its name in the configuration.
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            Provider::Cpu => "cpu",
+            Provider::Cuda => "cuda",
+            Provider::TensorRt => "tensorrt",
+        }
+    }
+}
+
+impl Default for OnnxRuntimeConfig {
+    fn default() -> Self {
+        Self {
+            library: None,
+            sha256: "fc44112fbe06d7d689c57e11d3862031f64711007e4ee020f8eed5185fd2c1d3".into(),
+            providers: vec![Provider::Cpu],
+            spin: false,
+        }
+    }
 }
 
 /// The shared TUM sequence the benches play by default, beside the repo.

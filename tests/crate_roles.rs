@@ -98,6 +98,8 @@ fn no_crate_depends_on_a_service_crate() {
         "evaluation",
         "provision",
         "onnx-runtime",
+        "pipeline-config",
+        "mask-model",
         "slam-core",
         "scheduling",
         "pipeline",
@@ -134,7 +136,8 @@ fn the_manifest_reader_sees_every_table() {
 /// The libraries that do their work without the IPC platform (`pipeline`:
 /// iceoryx2 services, the service runtime) stay free of it, so a tool or
 /// another program can use them without the pipeline's transport: the
-/// model runtime, the dataset readers, the timing rules, the SLAM core.
+/// configuration, the model seam, runtime and models, the dataset readers,
+/// the timing rules, the SLAM core, the run folder's format.
 #[test]
 fn libraries_without_ipc_do_not_depend_on_the_pipeline() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -144,7 +147,19 @@ fn libraries_without_ipc_do_not_depend_on_the_pipeline() {
         dependencies(&std::fs::read_to_string(dir.join("Cargo.toml")).unwrap())
     };
     let ours: BTreeSet<&str> = all.iter().map(|(n, _)| n.as_str()).collect();
-    for library in ["provision", "onnx-runtime", "datasets", "scheduling", "slam-core"] {
+    for library in [
+        "provision",
+        "pipeline-config",
+        "mask-model",
+        "onnx-runtime",
+        "segmentation",
+        "propagation",
+        "datasets",
+        "scheduling",
+        "slam-core",
+        "scenes",
+        "run-folder",
+    ] {
         // Every crate of ours it reaches, through any dependency table.
         let mut reached = BTreeSet::new();
         let mut todo = vec![library.to_string()];

@@ -15,6 +15,8 @@
 use iceoryx2::prelude::ZeroCopySend;
 
 pub mod names;
+pub mod stats;
+pub mod views;
 
 /// Maximum number of object instances carried by one [`MasksHeader`].
 pub const MAX_INSTANCES: usize = 32;

@@ -9,9 +9,12 @@
 //! - [`decode`]: PNG decoding straight into the destination bytes (the
 //!   loaned shared-memory sample, in the camera-reader).
 //! - [`fuzz`]: cheap random texts for the parser robustness tests.
+//! - [`progress`]: the progress line of long offline work over a dataset
+//!   (synthesis, lockstep runs, evaluations).
 
 #![deny(missing_docs)]
 
 pub mod decode;
 pub mod fuzz;
+pub mod progress;
 pub mod source;

@@ -12,14 +12,23 @@
 
 pub mod cameras;
 pub mod clock;
-pub mod config;
 pub mod mask_worker;
-pub mod progress;
 pub mod runtime;
-pub mod stats;
 pub mod transport;
-pub mod views;
 
 /// Finding and checking model files and the ONNX Runtime library (its own
 /// crate, so the model crates use it without the IPC platform).
 pub use ::provision;
+
+/// The configuration (its own crate, so tools and model crates read it
+/// without the IPC platform).
+pub use pipeline_config as config;
+
+/// Typed views over the frames, masks and map in shared memory.
+pub use shared_types::views;
+
+/// Percentiles for the latency report and the benchmarks.
+pub use shared_types::stats;
+
+/// A progress line for long offline work.
+pub use datasets::progress;

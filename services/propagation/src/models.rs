@@ -2,9 +2,9 @@
 //! selects.
 
 use anyhow::Result;
+use mask_model::{model_from_config, MaskModel, ModelFactory};
 use onnx_runtime::init_runtime;
-use pipeline::config::PipelineConfig;
-use pipeline::mask_worker::{model_from_config, MaskModel, ModelFactory};
+use pipeline_config::PipelineConfig;
 use shared_types::ServiceKind;
 
 use crate::newcomers::NewcomerCheck;

@@ -29,7 +29,7 @@
 //! 640x480 frame on one core of the 2-core machine (`propagator-bench`).
 
 use nalgebra::{SMatrix, SVector};
-use pipeline::config::{CameraConfig, ClockMode, RoutingConfig};
+use pipeline_config::{CameraConfig, ClockMode, RoutingConfig};
 use slam_core::geometry::ransac::Ransac;
 use slam_core::Camera;
 
@@ -97,7 +97,7 @@ impl Default for NewcomerParams {
     }
 }
 
-pub use pipeline::views::DepthImage;
+pub use shared_types::views::DepthImage;
 
 /// A region that asked for a segmenter run.
 #[derive(Debug, Clone, Copy, PartialEq)]

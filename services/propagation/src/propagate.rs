@@ -14,8 +14,8 @@ use std::collections::VecDeque;
 use std::sync::Arc;
 
 use anyhow::Result;
-use pipeline::mask_worker::MaskModel;
-use pipeline::views::{FrameView, MasksView};
+use mask_model::MaskModel;
+use shared_types::views::{FrameView, MasksView};
 use shared_types::Instance;
 
 use crate::lk::LkParams;

@@ -26,13 +26,13 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
+use mask_model::MaskModel;
 use onnx_runtime::{check_input_size, check_signature, open_session, verified_model};
 use ort::session::Session;
 use ort::value::TensorRef;
-use pipeline::config::PropagatorConfig;
-use pipeline::mask_worker::MaskModel;
-use pipeline::runtime::InputError;
-use pipeline::views::{FrameView, MasksView};
+use pipeline_config::PropagatorConfig;
+use provision::InputError;
+use shared_types::views::{FrameView, MasksView};
 use shared_types::{Instance, MAX_INSTANCES};
 
 /// The image encoder's input names (checked at load).

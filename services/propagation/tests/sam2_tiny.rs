@@ -8,9 +8,9 @@
 
 use std::path::{Path, PathBuf};
 
-use pipeline::config::{OnnxRuntimeConfig, PropagatorConfig};
-use pipeline::provision::{sha256_of, ORT_CACHE};
+use pipeline_config::{OnnxRuntimeConfig, PropagatorConfig};
 use propagation::sam2::{Sam2Propagator, Sam2Settings};
+use provision::{sha256_of, ORT_CACHE};
 use shared_types::Instance;
 
 fn repo() -> PathBuf {

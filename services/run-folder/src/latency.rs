@@ -5,7 +5,7 @@
 use serde::Serialize;
 use serde_json::json;
 
-use pipeline::stats::percentile;
+use shared_types::stats::percentile;
 
 use crate::outputs::FrameRow;
 

@@ -19,8 +19,8 @@ use std::thread::JoinHandle;
 use anyhow::{Context, Result};
 use datasets::source::MaskList;
 use image::GrayImage;
-use pipeline::config::SaveMasks;
-use pipeline::views::MasksView;
+use pipeline_config::SaveMasks;
+use shared_types::views::MasksView;
 use shared_types::MaskSource;
 
 /// The saved masks, `masks/<seq>.png` (`run.save_masks`).

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use pipeline::config::PipelineConfig;
+use pipeline_config::PipelineConfig;
 use serde::{Deserialize, Serialize};
 
 /// The resolved configuration the run uses (a resume reads it back).

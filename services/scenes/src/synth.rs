@@ -15,10 +15,10 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
 
+use datasets::progress::Progress;
 use datasets::source::{tum_folder, FrameEntry};
 use image::{ImageBuffer, Luma, RgbImage};
 use nalgebra::Isometry3;
-use pipeline::progress::Progress;
 use serde::Serialize;
 use slam_core::io::trajectory::Trajectory;
 

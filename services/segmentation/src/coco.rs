@@ -100,7 +100,7 @@ pub fn class_of_category(category: i64) -> Option<usize> {
 }
 
 /// The movable classes masked by default (DESIGN section 1).
-pub use pipeline::config::DEFAULT_DYNAMIC_CLASSES as DEFAULT_DYNAMIC;
+pub use pipeline_config::DEFAULT_DYNAMIC_CLASSES as DEFAULT_DYNAMIC;
 
 /// The configured dynamic classes (default: [`DEFAULT_DYNAMIC`]) as class
 /// ids; an unknown name is a configuration error naming the key.

@@ -51,7 +51,7 @@ pub struct Export {
     pub family: YoloFamily,
     /// The square network input in pixels.
     pub input_size: usize,
-    /// The file name, looked up as `pipeline::provision` says.
+    /// The file name, looked up as `provision::locate_model` says.
     pub file: &'static str,
     /// Checked before the file is loaded.
     pub sha256: &'static str,

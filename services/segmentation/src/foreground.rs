@@ -15,7 +15,7 @@
 //! of a ring around it (leaving out what is in front of it: an occluding
 //! desk) lies clearly behind it.
 
-use pipeline::views::DepthImage;
+use shared_types::views::DepthImage;
 
 /// Thresholds of the test (defaults chosen on the synth sequences and the
 /// static shared sequence; docs/models.md "Weak detections").

@@ -7,8 +7,8 @@ use std::path::Path;
 
 use anyhow::{bail, Result};
 use datasets::source::MaskList;
-use pipeline::mask_worker::MaskModel;
-use pipeline::views::FrameView;
+use mask_model::MaskModel;
+use shared_types::views::FrameView;
 use shared_types::{Instance, MAX_INSTANCES};
 
 /// COCO's `person`, the class the synthesised objects are.

@@ -13,12 +13,12 @@
 //! the instance.
 
 use anyhow::{bail, Context, Result};
+use mask_model::MaskModel;
 use ort::session::Session;
 use ort::value::TensorRef;
-use pipeline::config::SegmenterConfig;
-use pipeline::mask_worker::MaskModel;
-use pipeline::runtime::InputError;
-use pipeline::views::FrameView;
+use pipeline_config::SegmenterConfig;
+use provision::InputError;
+use shared_types::views::FrameView;
 use shared_types::{Instance, MAX_INSTANCES};
 
 use crate::coco::{self, class_of_category};

@@ -2,10 +2,10 @@
 //! selects, for the segmenter service and for a remote worker alike.
 
 use anyhow::Result;
+use mask_model::{model_from_config, MaskModel, ModelFactory};
 use onnx_runtime::init_runtime;
-use pipeline::config::PipelineConfig;
-use pipeline::mask_worker::{model_from_config, MaskModel, ModelFactory};
-use pipeline::runtime::InputError;
+use pipeline_config::PipelineConfig;
+use provision::InputError;
 use shared_types::ServiceKind;
 
 use crate::exports::YoloFamily;

@@ -6,12 +6,12 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
+use mask_model::MaskModel;
 use ort::session::Session;
 use ort::value::TensorRef;
-use pipeline::config::{ClockMode, SegmenterConfig};
-use pipeline::mask_worker::MaskModel;
-use pipeline::runtime::InputError;
-use pipeline::views::{DepthImage, FrameView, MasksView};
+use pipeline_config::{ClockMode, SegmenterConfig};
+use provision::InputError;
+use shared_types::views::{DepthImage, FrameView, MasksView};
 use shared_types::Instance;
 
 use crate::coco;

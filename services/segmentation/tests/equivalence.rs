@@ -8,8 +8,8 @@
 use std::path::{Path, PathBuf};
 
 use onnx_runtime::init_runtime;
-use pipeline::config::{OnnxRuntimeConfig, SegmenterConfig};
-use pipeline::provision::ORT_CACHE;
+use pipeline_config::{OnnxRuntimeConfig, SegmenterConfig};
+use provision::ORT_CACHE;
 use segmentation::onnx::{YoloSeg, YoloSettings};
 
 fn repo() -> PathBuf {

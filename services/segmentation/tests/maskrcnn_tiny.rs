@@ -6,8 +6,8 @@
 use std::path::{Path, PathBuf};
 
 use onnx_runtime::init_runtime;
-use pipeline::config::{OnnxRuntimeConfig, SegmenterConfig};
-use pipeline::provision::{sha256_of, ORT_CACHE};
+use pipeline_config::{OnnxRuntimeConfig, SegmenterConfig};
+use provision::{sha256_of, ORT_CACHE};
 use segmentation::coco::CLASSES;
 use segmentation::maskrcnn::MaskRcnn;
 

@@ -5,8 +5,8 @@
 use std::path::{Path, PathBuf};
 
 use onnx_runtime::init_runtime;
-use pipeline::config::{OnnxRuntimeConfig, SegmenterConfig};
-use pipeline::provision::ORT_CACHE;
+use pipeline_config::{OnnxRuntimeConfig, SegmenterConfig};
+use provision::ORT_CACHE;
 use segmentation::coco::CLASSES;
 use segmentation::exports::YoloFamily;
 use segmentation::onnx::{YoloSeg, YoloSettings};
@@ -214,7 +214,7 @@ fn bad_model_files_and_runtime_give_named_errors() {
     // Corrupt ONNX file with a matching hash: the loader names the file.
     let corrupt = dir.join("corrupt.onnx");
     std::fs::write(&corrupt, b"not a protobuf at all").unwrap();
-    let sha = pipeline::provision::sha256_of(&corrupt).unwrap();
+    let sha = provision::sha256_of(&corrupt).unwrap();
     let cfg = SegmenterConfig {
         model_path: Some(corrupt.clone()),
         model: "corrupt.onnx".into(),
@@ -291,8 +291,7 @@ fn an_input_size_the_model_does_not_take_is_a_configuration_error() {
         "{msg}"
     );
     assert!(
-        err.downcast_ref::<pipeline::runtime::InputError>()
-            .is_some(),
+        err.downcast_ref::<provision::InputError>().is_some(),
         "an input error (not retried): {msg}"
     );
 }
@@ -323,7 +322,7 @@ fn export_path(family: YoloFamily, size: usize) -> PathBuf {
         .file;
     [
         repo().join("../shared/models").join(file),
-        repo().join(pipeline::provision::DERIVED_MODELS).join(file),
+        repo().join(provision::DERIVED_MODELS).join(file),
     ]
     .into_iter()
     .find(|p| p.is_file())
@@ -421,7 +420,7 @@ fn the_480_and_640_rewrites_agree_with_the_320_export_on_large_objects() {
 fn model_480(score: f32, weak: f32) -> YoloSeg {
     let cfg = SegmenterConfig {
         model_path: Some(export_path(YoloFamily::V8, 480)),
-        classes: pipeline::config::DEFAULT_DYNAMIC_CLASSES
+        classes: pipeline_config::DEFAULT_DYNAMIC_CLASSES
             .iter()
             .map(|s| s.to_string())
             .collect(),
@@ -470,7 +469,7 @@ fn weak_detections_need_depth_or_a_followed_object_to_become_masks() {
     let (mut area_strict, mut area_weak, mut area_all) = (0, 0, 0);
     let mut labels = vec![0u8; w * h];
     for (rgb, depth) in &frames {
-        let depth = pipeline::views::DepthImage {
+        let depth = shared_types::views::DepthImage {
             raw: depth,
             per_metre: 5000.0,
         };

@@ -19,13 +19,13 @@ use anyhow::{Context, Result};
 use clap::Parser;
 use datasets::decode::decode_depth_into;
 use datasets::source::tum_folder;
-use pipeline::config::{CameraConfig, OnnxRuntimeConfig, PropagatorConfig, RoutingConfig};
-use pipeline::stats::percentile;
+use pipeline_config::{CameraConfig, OnnxRuntimeConfig, PropagatorConfig, RoutingConfig};
 use propagation::newcomers::{DepthImage, NewcomerCheck};
 use propagation::propagate::{LkPropagator, PropagatorParams};
 use propagation::pyramid::{Gray, Pyramid};
 use propagation::sam2::{Sam2Propagator, Sam2Settings};
 use propagation::synthetic::{iou, render};
+use shared_types::stats::percentile;
 use shared_types::Instance;
 
 #[derive(Debug, Parser)]
@@ -33,7 +33,7 @@ use shared_types::Instance;
 struct Args {
     #[arg(
         long,
-        default_value_os_t = pipeline::provision::shared_tum()
+        default_value_os_t = provision::shared_tum()
     )]
     dataset: PathBuf,
     #[arg(long, default_value_t = 200)]
@@ -51,7 +51,7 @@ struct Args {
 /// The `sam2` backend on the given files (hashes taken from the files: a
 /// bench of the user's own export).
 fn sam2(encoder: &std::path::Path, decoder: &std::path::Path) -> Result<Sam2Propagator> {
-    let sha = |p: &std::path::Path| pipeline::provision::sha256_of(p).map_err(anyhow::Error::msg);
+    let sha = |p: &std::path::Path| provision::sha256_of(p).map_err(anyhow::Error::msg);
     let name = |p: &std::path::Path| {
         p.file_name()
             .unwrap_or_default()
@@ -198,7 +198,7 @@ fn time_newcomer_check(
     let mut check = NewcomerCheck::for_pipeline(
         &CameraConfig::default(),
         &RoutingConfig::default(),
-        pipeline::config::ClockMode::Lockstep,
+        pipeline_config::ClockMode::Lockstep,
     );
     let lk = PropagatorParams::default();
     let mut prev: Option<Pyramid> = None;

@@ -20,11 +20,11 @@ use clap::Parser;
 use datasets::decode::decode_depth_into;
 use datasets::source::tum_folder;
 use onnx_runtime::init_runtime;
-use pipeline::config::PipelineConfig;
-use pipeline::stats::percentile;
-use pipeline::views::DepthImage;
+use pipeline_config::PipelineConfig;
 use segmentation::exports::YoloFamily;
 use segmentation::onnx::{YoloSeg, YoloSettings};
+use shared_types::stats::percentile;
+use shared_types::views::DepthImage;
 
 #[derive(Debug, Parser)]
 #[command(about = "YOLO-seg segmenters: ms per 640x480 frame")]
@@ -32,7 +32,7 @@ struct Args {
     /// TUM RGB-D folder whose frames are segmented.
     #[arg(
         long,
-        default_value_os_t = pipeline::provision::shared_tum()
+        default_value_os_t = provision::shared_tum()
     )]
     dataset: PathBuf,
     #[arg(long, default_value_t = 100)]

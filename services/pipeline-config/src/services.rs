@@ -307,7 +307,7 @@ impl SlamConfig {
 
     /// A warm standby SLAM runs beside the active one (`standby`; unset:
     /// in real time).
-    pub fn has_standby(&self, mode: crate::config::ClockMode) -> bool {
+    pub fn has_standby(&self, mode: crate::ClockMode) -> bool {
         self.standby.unwrap_or(mode.is_realtime())
     }
 }

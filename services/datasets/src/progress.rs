@@ -5,6 +5,7 @@
 use std::io::{IsTerminal, Write};
 use std::time::Instant;
 
+/// One progress line: a label, a bar, done of total, elapsed and estimated time left.
 pub struct Progress {
     label: String,
     total: u64,
@@ -15,6 +16,7 @@ pub struct Progress {
 }
 
 impl Progress {
+    /// A line for `total` items.
     pub fn new(label: impl Into<String>, total: u64) -> Self {
         Self {
             label: label.into(),
@@ -39,6 +41,7 @@ impl Progress {
         self.last_decile = decile;
     }
 
+    /// One more step done.
     pub fn inc(&mut self) {
         self.set(self.done + 1);
     }

@@ -2,12 +2,13 @@
 //! A view never copies pixels; it checks lengths once so that the rest of a
 //! service can index without surprises.
 
+use crate::{read_error_text, FrameHeader, MaskSource, MasksHeader};
 use anyhow::{bail, Result};
-use shared_types::{read_error_text, FrameHeader, MaskSource, MasksHeader};
 
 /// One frame read in place.
 #[derive(Clone, Copy)]
 pub struct FrameView<'a> {
+    /// The frame's header (sequence number, size, stamps).
     pub header: &'a FrameHeader,
     /// RGB8, row-major, `width*height*3` bytes.
     pub rgb: &'a [u8],
@@ -45,9 +46,11 @@ impl<'a> FrameView<'a> {
         })
     }
 
+    /// Width in pixels.
     pub fn width(&self) -> usize {
         self.header.width as usize
     }
+    /// Height in pixels.
     pub fn height(&self) -> usize {
         self.header.height as usize
     }
@@ -71,7 +74,9 @@ impl<'a> FrameView<'a> {
 /// Depth of a frame: native-endian u16 values, `per_metre` units a metre.
 #[derive(Debug, Clone, Copy)]
 pub struct DepthImage<'a> {
+    /// The u16 values' bytes, row-major (0: no measurement).
     pub raw: &'a [u8],
+    /// Raw units per metre (TUM: 5000).
     pub per_metre: f32,
 }
 
@@ -99,12 +104,14 @@ impl DepthImage<'_> {
 /// One set of masks read in place.
 #[derive(Clone, Copy)]
 pub struct MasksView<'a> {
+    /// The masks' header (frame, size, instances, source).
     pub header: &'a MasksHeader,
     /// Label image, `width*height` bytes: 0 background, `i+1` instance `i`.
     pub labels: &'a [u8],
 }
 
 impl<'a> MasksView<'a> {
+    /// Checks that the payload holds the label image the header announces.
     pub fn new(header: &'a MasksHeader, payload: &'a [u8]) -> Result<Self> {
         let len = header.width as usize * header.height as usize;
         if payload.len() < len {
@@ -122,16 +129,18 @@ impl<'a> MasksView<'a> {
         })
     }
 
+    /// Which worker made them.
     pub fn source(&self) -> MaskSource {
         MaskSource::from_u32(self.header.source).unwrap_or(MaskSource::None)
     }
 }
 
-/// One point of a map snapshot ([`shared_types::MapHeader`]).
+/// One point of a map snapshot ([`crate::MapHeader`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MapPointEntry {
     /// World position (the SLAM's world frame, metres).
     pub position: [f32; 3],
+    /// RGB of the point as a keyframe saw it (black when unknown).
     pub colour: [u8; 3],
     /// Index (in the snapshot) of the keyframe that observed it first.
     pub keyframe: u32,
@@ -159,9 +168,9 @@ impl MapPointEntry {
 
 /// Writes a snapshot's keyframes (world-from-camera tx ty tz qx qy qz qw)
 /// and points into `payload`, which holds exactly
-/// [`shared_types::MapHeader::payload_len`] bytes for them.
+/// [`crate::MapHeader::payload_len`] bytes for them.
 pub fn write_map(payload: &mut [u8], keyframes: &[[f64; 7]], points: &[MapPointEntry]) {
-    use shared_types::{MAP_KEYFRAME_BYTES, MAP_POINT_BYTES};
+    use crate::{MAP_KEYFRAME_BYTES, MAP_POINT_BYTES};
     let (kf_bytes, point_bytes) = payload.split_at_mut(keyframes.len() * MAP_KEYFRAME_BYTES);
     for (k, out) in keyframes
         .iter()
@@ -182,7 +191,8 @@ pub fn write_map(payload: &mut [u8], keyframes: &[[f64; 7]], points: &[MapPointE
 /// A map snapshot read in place.
 #[derive(Clone, Copy)]
 pub struct MapView<'a> {
-    pub header: &'a shared_types::MapHeader,
+    /// The snapshot's header (counts, stamp).
+    pub header: &'a crate::MapHeader,
     keyframes: &'a [u8],
     points: &'a [u8],
 }
@@ -190,7 +200,7 @@ pub struct MapView<'a> {
 impl<'a> MapView<'a> {
     /// Checks that the payload holds what the header announces and that
     /// every point names a keyframe of the snapshot.
-    pub fn new(header: &'a shared_types::MapHeader, payload: &'a [u8]) -> Result<Self> {
+    pub fn new(header: &'a crate::MapHeader, payload: &'a [u8]) -> Result<Self> {
         let need = header.payload_len();
         if payload.len() < need {
             bail!(
@@ -201,7 +211,7 @@ impl<'a> MapView<'a> {
                 header.points
             );
         }
-        let split = header.keyframes as usize * shared_types::MAP_KEYFRAME_BYTES;
+        let split = header.keyframes as usize * crate::MAP_KEYFRAME_BYTES;
         let view = Self {
             header,
             keyframes: &payload[..split],
@@ -221,7 +231,7 @@ impl<'a> MapView<'a> {
     /// World-from-camera poses: tx ty tz qx qy qz qw.
     pub fn keyframes(&self) -> impl Iterator<Item = [f64; 7]> + 'a {
         self.keyframes
-            .chunks_exact(shared_types::MAP_KEYFRAME_BYTES)
+            .chunks_exact(crate::MAP_KEYFRAME_BYTES)
             .map(|b| {
                 let mut k = [0.0; 7];
                 for (i, v) in k.iter_mut().enumerate() {
@@ -231,9 +241,10 @@ impl<'a> MapView<'a> {
             })
     }
 
+    /// The snapshot's points.
     pub fn points(&self) -> impl Iterator<Item = MapPointEntry> + 'a {
         self.points
-            .chunks_exact(shared_types::MAP_POINT_BYTES)
+            .chunks_exact(crate::MAP_POINT_BYTES)
             .map(MapPointEntry::read)
     }
 }
@@ -241,7 +252,7 @@ impl<'a> MapView<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use shared_types::MapHeader;
+    use crate::MapHeader;
 
     #[test]
     fn a_map_snapshot_round_trips_and_a_bad_one_is_refused() {

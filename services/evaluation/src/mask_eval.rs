@@ -23,13 +23,13 @@ use std::path::Path;
 
 use anyhow::{bail, Context, Result};
 use datasets::decode::decode_depth_into;
+use datasets::progress::Progress;
 use datasets::source::{tum_folder, FrameEntry, MaskList};
 use image::{GrayImage, RgbImage};
 use onnx_runtime::init_runtime;
-use pipeline::config::PipelineConfig;
-use pipeline::progress::Progress;
-use pipeline::views::DepthImage;
+use pipeline_config::PipelineConfig;
 use propagation::newcomers::NewcomerCheck;
+use shared_types::views::DepthImage;
 
 use propagation::propagate::{LkPropagator, PropagatorParams};
 use run_folder::ignore::IgnoreRegions;
@@ -286,7 +286,7 @@ impl Entries {
     /// The counts with the median delay.
     fn finish(mut self) -> Self {
         self.delays.sort_by(f64::total_cmp);
-        self.delay_frames_p50 = pipeline::stats::percentile(&self.delays, 50.0);
+        self.delay_frames_p50 = shared_types::stats::percentile(&self.delays, 50.0);
         self
     }
 
@@ -388,7 +388,7 @@ pub fn evaluate(
         propagator = propagator.with_newcomer_check(NewcomerCheck::for_pipeline(
             &config.camera,
             &config.routing,
-            pipeline::config::ClockMode::Lockstep,
+            pipeline_config::ClockMode::Lockstep,
         ));
     }
     let mut tally = Tally::new(keyframe_every);
@@ -581,8 +581,8 @@ impl Tally {
             ignore_regions,
             early_segments: self.early_segments,
             entries: self.entries.finish(),
-            segmenter_ms_p50: pipeline::stats::percentile(&self.seg_ms, 50.0),
-            propagator_ms_p50: pipeline::stats::percentile(&self.prop_ms, 50.0),
+            segmenter_ms_p50: shared_types::stats::percentile(&self.seg_ms, 50.0),
+            propagator_ms_p50: shared_types::stats::percentile(&self.prop_ms, 50.0),
         }
     }
 }

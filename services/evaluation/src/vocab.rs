@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use datasets::source::{image_folder, SourceError};
-use pipeline::provision::sha256_of;
+use provision::sha256_of;
 use slam_core::features::orb::{GrayU8, OrbExtractor};
 use slam_core::place_recognition::vocabulary::{TrainOptions, Vocabulary};
 use slam_core::SlamParams;

@@ -34,48 +34,66 @@ pub struct BridgeConfig {
     /// first tracked frame: x forward, z up); "optical": the SLAM's own
     /// world frame (the first camera's optical axes: z forward, y down).
     pub world_frame: String,
+    /// The map frame's tf name.
     pub map_frame: String,
     /// The robot's odometry frame when it publishes `odom -> base_frame`
     /// on tf: the SLAM then publishes `map -> odom` (REP-105); empty: the
     /// SLAM publishes `map -> base_frame`.
     pub odom_frame: String,
+    /// The robot's base frame (tf name).
     pub base_frame: String,
+    /// The camera's optical frame (tf name), the frame of the masks.
     pub camera_frame: String,
     /// The camera's mounting, base_frame -> camera_frame (metres, and
     /// roll pitch yaw in radians as `static_transform_publisher` takes
     /// them). Default: at the base's origin, optical axes (z forward).
     pub camera_xyz: [f64; 3],
+    /// The mounting's roll, pitch and yaw (radians).
     pub camera_rpy: [f64; 3],
     /// Topic names: relative ones resolve under the namespace.
     pub odometry_topic: String,
+    /// `nav_msgs/Path` of the tracked frames.
     pub path_topic: String,
+    /// `geometry_msgs/PoseArray` of the keyframes.
     pub keyframes_topic: String,
+    /// `std_msgs/String`: the tracking state.
     pub state_topic: String,
     /// The masks SLAM tracked each frame with, as a mono8 label image
     /// (0 background, i + 1 instance i) on `mask_topic`; off by default
     /// (300 KB a frame).
     pub mask_image: bool,
+    /// Where the label images go.
     pub mask_topic: String,
+    /// The tf topic (relative: under the namespace).
     pub tf_topic: String,
+    /// The static tf topic (the camera's mounting).
     pub tf_static_topic: String,
+    /// `diagnostic_msgs/DiagnosticArray`.
     pub diagnostics_topic: String,
     /// Seconds between publications of the path and of the diagnostics.
     pub path_period_s: f64,
+    /// Seconds between diagnostics.
     pub diagnostics_period_s: f64,
     /// The map's points as `sensor_msgs/PointCloud2` on `map_cloud_topic`,
     /// and the keyframes as the map holds them (moved by bundle adjustment
     /// and loops), after keyframes, at most once per `map_period_s` (and
     /// after every closed loop).
     pub map_cloud: bool,
+    /// Where the map's points go.
     pub map_cloud_topic: String,
+    /// Shortest time between two maps published, seconds.
     pub map_period_s: f64,
     /// A `nav_msgs/OccupancyGrid` (Nav2) on `grid_topic` with each map:
     /// points between `grid_min_height` and `grid_max_height` above the
     /// map frame's z = 0 are obstacles (`world_frame = "ros"` only).
     pub grid: bool,
+    /// Where the grid goes.
     pub grid_topic: String,
+    /// Metres per cell.
     pub grid_resolution: f64,
+    /// Lowest obstacle point, metres above the map frame's z = 0.
     pub grid_min_height: f64,
+    /// Highest obstacle point (ceilings above are left out), metres.
     pub grid_max_height: f64,
     /// Points a cell needs to be occupied.
     pub grid_min_points: u32,

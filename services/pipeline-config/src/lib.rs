@@ -1,3 +1,4 @@
+#![deny(missing_docs)]
 //! The pipeline configuration (`configs/pipeline.toml`).
 //!
 //! One file describes a whole run: the source, the clock mode, routing,
@@ -23,25 +24,35 @@ pub use remote::{check_run_name, RemoteConfig};
 pub use services::*;
 pub use source::{Ros2SourceConfig, SourceConfig, SourceKind, V4l2Config};
 
+/// A whole run's configuration: one field per section of `pipeline.toml`.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
 #[serde(deny_unknown_fields)]
 pub struct PipelineConfig {
+    /// `[run]`: clock mode, output, frame size limits.
     #[serde(default)]
     pub run: RunConfig,
+    /// `[source]`: what is played (dataset, camera, ROS 2 topic).
     #[serde(default)]
     pub source: SourceConfig,
+    /// `[routing]`: which frames go to the segmenter.
     #[serde(default)]
     pub routing: RoutingConfig,
+    /// `[supervisor]`: restarts and the watchdog.
     #[serde(default)]
     pub supervisor: SupervisorConfig,
+    /// `[services.*]`: each service's own settings.
     #[serde(default)]
     pub services: ServicesConfig,
+    /// `[onnxruntime]`: the library and its execution providers.
     #[serde(default)]
     pub onnxruntime: OnnxRuntimeConfig,
+    /// `[camera]`: intrinsics, distortion, rolling shutter.
     #[serde(default)]
     pub camera: CameraConfig,
+    /// `[bridge]`: ROS 2.
     #[serde(default)]
     pub bridge: BridgeConfig,
+    /// `[remote]`: mask workers on another machine.
     #[serde(default)]
     pub remote: RemoteConfig,
 }
@@ -51,9 +62,13 @@ pub struct PipelineConfig {
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct CameraConfig {
+    /// Focal length along x, pixels.
     pub fx: f64,
+    /// Focal length along y, pixels.
     pub fy: f64,
+    /// Principal point x, pixels.
     pub cx: f64,
+    /// Principal point y, pixels.
     pub cy: f64,
     /// OpenCV order: k1, k2, p1, p2, k3.
     pub distortion: [f64; 5],
@@ -119,9 +134,11 @@ pub use provision::{OnnxRuntimeConfig, Provider};
 /// the scheduling crate).
 pub use scheduling::ClockMode;
 
+/// `[run]`: how the run is clocked and where it writes.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct RunConfig {
+    /// Lockstep (every frame, in order) or real time (the camera's pace).
     pub mode: ClockMode,
     /// Real-time playback speed factor (2.0 plays twice as fast as recorded).
     pub speed: f64,
@@ -129,6 +146,7 @@ pub struct RunConfig {
     pub output_dir: PathBuf,
     /// Largest frame the shared-memory segments are sized for.
     pub max_width: u32,
+    /// Tallest frame, likewise.
     pub max_height: u32,
     /// Fail the run (exit 1) instead of finishing it degraded (exit 3) when
     /// a mask worker is given up on (missing model, crash loop).
@@ -152,6 +170,7 @@ pub enum SaveMasks {
     Keyframes,
     /// Every frame's (a 10-minute run at 30 fps: about 80 MB).
     All,
+    /// None (the rows of `masks.csv` only).
     None,
 }
 
@@ -184,6 +203,7 @@ impl Default for RunConfig {
 /// `[routing]`: see [`scheduling::RoutingConfig`].
 pub use scheduling::RoutingConfig;
 
+/// `[supervisor]`: how services are restarted and when a run counts as stalled.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct SupervisorConfig {
@@ -191,6 +211,7 @@ pub struct SupervisorConfig {
     /// second (a start-up crash loop); doubled after each such death. A
     /// service that served is restarted at once.
     pub restart_backoff_initial_ms: u64,
+    /// The longest that delay grows to.
     pub restart_backoff_max_ms: u64,
     /// A service that stays up this long gets its backoff and its crash
     /// count reset.
@@ -230,13 +251,22 @@ impl Default for SupervisorConfig {
 pub enum ConfigError {
     // The OS error is part of the message, not a `source`: error chains
     // printed with their causes would say it twice.
+    /// The file could not be read.
     #[error("cannot read config file {path}: {error}")]
     Read {
+        /// The file.
         path: PathBuf,
+        /// What the system said.
         error: std::io::Error,
     },
+    /// The file was read but is not a valid configuration.
     #[error("config file {path}: {message}")]
-    Invalid { path: PathBuf, message: String },
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// The key, its line and what is wrong.
+        message: String,
+    },
 }
 
 impl PipelineConfig {
@@ -407,6 +437,7 @@ impl PipelineConfig {
         self.services.process(kind, &self.bridge.command)
     }
 
+    /// The configuration as TOML (the run folder's `config.toml`).
     pub fn to_toml(&self) -> Result<String, toml::ser::Error> {
         toml::to_string_pretty(self)
     }

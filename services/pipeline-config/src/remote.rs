@@ -29,6 +29,7 @@ pub struct RemoteConfig {
     /// (no encoding on the robot's CPU; 1.5 MB a 640x480 frame with depth:
     /// a wired link).
     pub encoding: String,
+    /// JPEG quality (1..=100) with `encoding = "jpeg"`.
     pub jpeg_quality: u8,
     /// Send the frame's depth too (16-bit PNG, raw with `encoding = "raw"`):
     /// the segmenter keeps weak detections where depth shows them standing out.

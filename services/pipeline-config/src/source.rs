@@ -34,6 +34,7 @@ pub struct V4l2Config {
     pub device: PathBuf,
     /// Requested size; the driver may pick the nearest it has (logged).
     pub width: u32,
+    /// Requested height, likewise.
     pub height: u32,
     /// Requested frame rate (frames per second).
     pub fps: u32,
@@ -58,9 +59,11 @@ impl Default for V4l2Config {
     }
 }
 
+/// `[source]`: what the camera-reader plays.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct SourceConfig {
+    /// A TUM folder, an image folder, frames from outside, a V4L2 camera or ROS 2 topics.
     pub kind: SourceKind,
     /// Folder to play; empty means "given on the command line".
     pub path: PathBuf,

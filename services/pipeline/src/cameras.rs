@@ -35,6 +35,7 @@ pub const PRESETS: &[(&str, &str)] = &[
 /// Which camera a run uses and why (said in the log and the report).
 #[derive(Debug, Clone, PartialEq)]
 pub struct CameraChoice {
+    /// The intrinsics, distortion and rolling shutter chosen.
     pub camera: CameraConfig,
     /// A preset's name, a file's path, or "config".
     pub name: String,

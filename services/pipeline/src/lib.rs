@@ -1,14 +1,19 @@
-//! The plumbing every dynslam service shares.
+//! The IPC platform every dynslam service shares.
 //!
-//! - [`config`]: the pipeline configuration (`configs/pipeline.toml`), parsed
-//!   strictly (unknown keys are rejected with their path) and layered over
-//!   the built-in defaults, which are the shipped file.
+//! - [`config`]: the pipeline configuration (`configs/pipeline.toml`, the
+//!   `pipeline-config` crate), parsed strictly (unknown keys are rejected
+//!   with their path) and layered over the built-in defaults, which are the
+//!   shipped file.
 //! - [`cameras`]: camera presets and the choice of a run's camera.
 //! - [`transport`]: iceoryx2 topics (publish-subscribe + event wake-ups) with
 //!   the per-run prefix, and the stale-resource cleanup of a run.
 //! - [`clock`]: CLOCK_MONOTONIC stamps comparable across processes.
 //! - [`runtime`]: what every service binary does at start (logging, exit
 //!   codes the supervisor understands, readiness handshake).
+//! - [`mask_worker`]: the segmenter's and the propagator's service loop
+//!   around a model (the `mask-model` crate's seam).
+
+#![deny(missing_docs)]
 
 pub mod cameras;
 pub mod clock;

@@ -41,9 +41,13 @@ pub use provision::InputError;
 
 /// Everything a service needs after the common start-up.
 pub struct ServiceContext {
+    /// Which service this process is.
     pub kind: ServiceKind,
+    /// The run's names (its iceoryx2 services and files).
     pub names: RunNames,
+    /// The run's configuration (the run folder's copy).
     pub config: PipelineConfig,
+    /// This process's iceoryx2 node.
     pub transport: Transport,
     /// Lives as long as the service: iceoryx2 discards a dropped publisher's
     /// undelivered samples, so a Ready sent from a short-lived sender could

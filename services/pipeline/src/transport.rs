@@ -85,7 +85,9 @@ pub fn qos(topic: Topic) -> Qos {
 /// Room of a map snapshot sample (the bridge's map topics): the points
 /// beyond it are left out (and counted).
 pub const MAX_MAP_KEYFRAMES: usize = 4096;
+/// Points a map snapshot sample has room for.
 pub const MAX_MAP_POINTS: usize = 100_000;
+/// Bytes of a map snapshot sample's payload.
 pub const MAX_MAP_BYTES: usize = MAX_MAP_KEYFRAMES * shared_types::MAP_KEYFRAME_BYTES
     + MAX_MAP_POINTS * shared_types::MAP_POINT_BYTES;
 
@@ -174,6 +176,8 @@ pub struct Transport {
 }
 
 impl Transport {
+    /// Creates this process's node in the run (`node_name` shows in
+    /// iceoryx2's node list: the service's name).
     pub fn open(names: &RunNames, node_name: &str) -> Result<Self> {
         let config = iceoryx_config(names)?;
         let node_name = NodeName::new(node_name)
@@ -192,10 +196,12 @@ impl Transport {
         })
     }
 
+    /// The iceoryx2 node.
     pub fn node(&self) -> &Node<Svc> {
         &self.node
     }
 
+    /// The run's names.
     pub fn names(&self) -> &RunNames {
         &self.names
     }
@@ -431,6 +437,7 @@ impl<H: Debug + ZeroCopySend + Default> Sender<[u8], H> {
         self.wake()
     }
 
+    /// The largest payload a sample holds, bytes.
     pub fn max_len(&self) -> usize {
         self.publisher.initial_max_slice_len()
     }
@@ -444,6 +451,7 @@ pub struct Receiver<P: Debug + IceoryxSend + ?Sized + 'static, H: Debug + ZeroCo
 }
 
 impl<P: Debug + IceoryxSend + ?Sized + 'static, H: Debug + ZeroCopySend> Receiver<P, H> {
+    /// Wakes the WaitSet it is attached to when a sample arrives.
     pub fn listener(&self) -> &Listener<Svc> {
         &self.listener
     }
@@ -454,6 +462,7 @@ impl<P: Debug + IceoryxSend + ?Sized + 'static, H: Debug + ZeroCopySend> Receive
         let _ = self.listener.try_wait(|_| {});
     }
 
+    /// The topic it reads.
     pub fn topic(&self) -> Topic {
         self.topic
     }
@@ -503,6 +512,7 @@ pub type Waiter = WaitSet<Svc>;
 /// Keeps a receiver attached to a [`Waiter`]; detaches when dropped.
 pub type Attachment<'w, 'a> = WaitSetGuard<'w, 'a, Svc>;
 
+/// A WaitSet that returns on SIGINT / SIGTERM (the services end cleanly).
 pub fn waitset() -> Result<Waiter> {
     WaitSetBuilder::new()
         .signal_handling_mode(SignalHandlingMode::HandleTerminationRequests)
@@ -552,7 +562,9 @@ pub use iceoryx2::waitset::WaitSetRunResult;
 /// Result of a stale-resource sweep.
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
 pub struct CleanupReport {
+    /// Nodes of dead processes whose resources were removed.
     pub dead_nodes_removed: usize,
+    /// Nodes still alive (left alone).
     pub alive_nodes: usize,
 }
 

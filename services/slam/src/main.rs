@@ -490,7 +490,7 @@ fn track_next_ready(
 fn record_loops(tracker: &mut dyn Tracker, path: Option<&std::path::Path>) -> Result<()> {
     let loops = tracker.take_loops();
     match path {
-        Some(path) if !loops.is_empty() => slam_backend::loops_csv::append(path, &loops)
+        Some(path) if !loops.is_empty() => run_folder::loops_csv::append(path, &loops)
             .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display())),
         _ => Ok(()),
     }

@@ -5,7 +5,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use anyhow::Result;
-use pipeline::config::PipelineConfig;
+use pipeline_config::PipelineConfig;
 use slam_core::eval::{evaluate, Alignment, EvalOptions, EvalSummary};
 use slam_core::io::trajectory::Trajectory;
 
@@ -298,7 +298,7 @@ fn files(md: &mut String, run_dir: &Path) -> Result<()> {
         )?,
     }
     let loops = run_dir.join(run_folder::run_dir::LOOPS_FILE);
-    match slam_backend::loops_csv::count_rows(&loops) {
+    match run_folder::loops_csv::count_rows(&loops) {
         Ok(0) if !loops.exists() => writeln!(
             md,
             "- no `loops.csv`: no loop closed (loop closing is `services.slam.loop_closing`, off by default)"

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use datasets::source::{FrameEntry, MaskList};
 use image::{imageops, Rgb, RgbImage};
-use pipeline::config::PipelineConfig;
+use pipeline_config::PipelineConfig;
 use plotters::style::RGBColor;
 use serde::Serialize;
 use slam_core::eval::{evaluate, Alignment, EvalOptions, EvalSummary};
@@ -320,8 +320,7 @@ fn mask_figures(
 /// Where in `e`'s associated poses each loop of `loops.csv` closed (the
 /// pose nearest its timestamp).
 fn loop_indices(run_dir: &Path, e: &EvalSummary) -> Vec<usize> {
-    let stamps =
-        slam_backend::loops_csv::timestamps(&run_dir.join(run_folder::run_dir::LOOPS_FILE));
+    let stamps = run_folder::loops_csv::timestamps(&run_dir.join(run_folder::run_dir::LOOPS_FILE));
     stamps
         .unwrap_or_default()
         .into_iter()

@@ -21,9 +21,13 @@ use crate::walkers::Occlusion;
 /// cut-out's few hundred pixels do not need it).
 #[derive(Debug, Clone, Copy)]
 pub struct Pinhole {
+    /// Focal length along x, pixels.
     pub fx: f64,
+    /// Focal length along y, pixels.
     pub fy: f64,
+    /// Principal point x, pixels.
     pub cx: f64,
+    /// Principal point y, pixels.
     pub cy: f64,
 }
 
@@ -36,8 +40,11 @@ impl Pinhole {
 /// One person as drawn into one frame.
 #[derive(Debug, Clone, Serialize)]
 pub struct Placement {
+    /// Instance id in the label image.
     pub id: u8,
+    /// Index into the sprites.
     pub sprite: usize,
+    /// Drawn mirrored (walking the other way).
     pub mirrored: bool,
     /// Image position of the cut-out's centre (pixels).
     pub centre_px: [f64; 2],
@@ -100,10 +107,15 @@ pub fn place(
 
 /// An RGB-D frame being drawn into, with its label image.
 pub struct Canvas<'a> {
+    /// Width in pixels.
     pub width: usize,
+    /// Height in pixels.
     pub height: usize,
+    /// RGB8, row-major.
     pub rgb: &'a mut [u8],
+    /// Depth values (`depth_scale` a metre; 0: none).
     pub depth: &'a mut [u16],
+    /// Instance ids (0: background).
     pub labels: &'a mut [u8],
     /// Depth units per metre.
     pub depth_scale: f64,

@@ -14,6 +14,8 @@
 //! - [`synth`]: `dynslam synth`, a TUM folder in, a dynamic TUM folder with
 //!   per-frame ground-truth masks and the objects' paths out.
 
+#![deny(missing_docs)]
+
 pub mod composite;
 pub mod room;
 pub mod sensor;

@@ -27,9 +27,13 @@ use crate::walkers::WalkOptions;
 /// What to render.
 #[derive(Debug, Clone)]
 pub struct RoomOptions {
+    /// Frames to render.
     pub frames: usize,
+    /// Frame rate (the timestamps' spacing).
     pub fps: f64,
+    /// Image width, pixels.
     pub width: usize,
+    /// Image height, pixels.
     pub height: usize,
     /// How the camera moves.
     pub path: CameraPath,

@@ -28,13 +28,16 @@ pub enum DepthSensor {
     /// The ray cast's depth, rounded to the depth image's units.
     #[default]
     Exact,
+    /// A Kinect v1 (structured light), as the module documentation says.
     Kinect,
+    /// A RealSense D435 (active stereo), likewise.
     RealSense,
 }
 
 /// The camera's imperfections a render gets.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct SensorModel {
+    /// The depth camera's noise, holes and quantisation.
     pub depth: DepthSensor,
     /// Exposure time (seconds; 0: no motion blur). Fr1's frames show blur of
     /// several pixels in fast turns: 10-20 ms at the turn rates there.

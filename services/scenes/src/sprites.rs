@@ -7,7 +7,9 @@ use image::RgbaImage;
 
 /// One person: RGBA pixels, alpha 0 or 255.
 pub struct Sprite {
+    /// Its name (the asset file's).
     pub name: &'static str,
+    /// The pixels.
     pub image: RgbaImage,
     /// Drawn with bilinear sampling (an opaque, drawn texture: nearest
     /// sampling of its fine print would flicker between frames, which no
@@ -17,10 +19,12 @@ pub struct Sprite {
 }
 
 impl Sprite {
+    /// Width in pixels.
     pub fn width(&self) -> usize {
         self.image.width() as usize
     }
 
+    /// Height in pixels.
     pub fn height(&self) -> usize {
         self.image.height() as usize
     }

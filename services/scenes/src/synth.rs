@@ -26,24 +26,45 @@ use crate::composite::{place, Canvas, Pinhole, Placement};
 use crate::sprites::{moving_box, people, Sprite};
 use crate::walkers::{walkers, Kind, Occlusion, Stage, WalkOptions, Walker};
 
+/// Why a synthesis failed (each names the file or option).
 #[derive(Debug, thiserror::Error)]
 pub enum SynthError {
+    /// The input sequence's lists.
     #[error("{0}")]
     Source(#[from] datasets::source::SourceError),
+    /// The input's ground-truth trajectory.
     #[error("{0}")]
     Trajectory(#[from] slam_core::io::trajectory::TrajectoryError),
+    /// An option out of range.
     #[error("options: {0}")]
     Options(String),
     #[error(
         "output folder {0} exists and is not empty: choose a new folder (nothing was overwritten)"
     )]
+    /// The output folder has files (never overwritten).
     OutputNotEmpty(PathBuf),
+    /// A file could not be read or written.
     #[error("{path}: {message}")]
-    Io { path: PathBuf, message: String },
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// What the system said.
+        message: String,
+    },
+    /// The input has no depth.
     #[error("{path}: frame without depth: dynslam synth needs an RGB-D sequence")]
-    NoDepth { path: PathBuf },
+    NoDepth {
+        /// The input's frame.
+        path: PathBuf,
+    },
+    /// An image that does not decode or has the wrong size.
     #[error("{path}: {message}")]
-    BadImage { path: PathBuf, message: String },
+    BadImage {
+        /// The image.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
 }
 
 fn io_err(path: &Path) -> impl Fn(std::io::Error) -> SynthError + '_ {
@@ -56,15 +77,22 @@ fn io_err(path: &Path) -> impl Fn(std::io::Error) -> SynthError + '_ {
 /// Everything `objects.json` holds.
 #[derive(Debug, Serialize)]
 pub struct SceneRecord {
+    /// The sequence the people were drawn into.
     pub input: PathBuf,
+    /// What was asked for.
     pub options: WalkOptions,
+    /// The cut-outs' names, by sprite index.
     pub sprites: Vec<&'static str>,
     /// What drew it ([`SYNTH_VERSION`]): a cached sequence of another
     /// version is made again (`just synth-people`).
     pub synth_version: u32,
+    /// Where the cut-outs come from (licences).
     pub sprite_provenance: &'static str,
+    /// The objects' class (COCO name).
     pub class: &'static str,
+    /// Each object's walk.
     pub walkers: Vec<Walker>,
+    /// Each frame's files and objects.
     pub frames: Vec<FrameRecord>,
 }
 
@@ -73,21 +101,29 @@ pub struct SceneRecord {
 /// cover in depth too.
 pub const SYNTH_VERSION: u32 = 2;
 
+/// One frame of a synthesised sequence.
 #[derive(Debug, Clone, Serialize)]
 pub struct FrameRecord {
+    /// The input frame's timestamp.
     pub timestamp: f64,
+    /// The colour image (relative to the output folder).
     pub rgb: String,
+    /// The depth image.
     pub depth: String,
+    /// The ground-truth label image.
     pub mask: String,
     /// The people drawn into this frame (possibly fully occluded: then
     /// `visible_px` is 0).
     pub objects: Vec<ObjectRecord>,
 }
 
+/// One object in one frame.
 #[derive(Debug, Clone, Serialize)]
 pub struct ObjectRecord {
+    /// Where and how it was drawn.
     #[serde(flatten)]
     pub placement: Placement,
+    /// Its pixels in the label image.
     pub visible_px: usize,
     /// Pixels in the image were nothing in front of the person: what
     /// `visible_px` falls short of it was hidden (`masks-eval`'s
@@ -98,9 +134,13 @@ pub struct ObjectRecord {
 /// What a synthesis did, for the command's summary line.
 #[derive(Debug)]
 pub struct SynthSummary {
+    /// Frames written.
     pub frames: usize,
+    /// Frames with a visible person.
     pub frames_with_people: usize,
+    /// Mean share of the image covered by people.
     pub mean_coverage: f64,
+    /// Largest share of one frame covered by people.
     pub max_coverage: f64,
 }
 

@@ -11,9 +11,11 @@ use std::collections::HashMap;
 /// One ground-truth person's score in one frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct InstanceIou {
+    /// The person's instance id.
     pub id: u8,
     /// Pixels of the person outside the ignore regions.
     pub pixels: usize,
+    /// Intersection over union of the best-matching predicted mask.
     pub iou: f64,
     /// The person touches the image border (walking in or out of view).
     pub border_cut: bool,

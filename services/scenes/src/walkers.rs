@@ -19,9 +19,13 @@ use slam_core::rng::SplitMix64;
 /// The world frame the walks are laid out in.
 #[derive(Debug, Clone, Copy)]
 pub struct Stage {
+    /// The camera's centre (world).
     pub origin: Point3<f64>,
+    /// Across the view (world unit vector).
     pub right: Vector3<f64>,
+    /// Up (world unit vector).
     pub up: Vector3<f64>,
+    /// Away from the camera (world unit vector).
     pub forward: Vector3<f64>,
 }
 
@@ -53,6 +57,7 @@ pub enum Behaviour {
 
 /// Stop-and-go: seconds of walking, then of standing.
 pub const WALK_S: f64 = 2.0;
+/// Stop-and-go: seconds of standing after each walk.
 pub const STOP_S: f64 = 1.5;
 
 /// Which behaviours a scene's people take.
@@ -87,7 +92,9 @@ pub const BOX_HEIGHT_M: f64 = 0.4;
 pub struct Walker {
     /// Instance id in the ground-truth masks (1..=255).
     pub id: u8,
+    /// A person or a box.
     pub kind: Kind,
+    /// How it moves.
     pub behaviour: Behaviour,
     /// Toward-away: where across the view (metres along `right`).
     pub lateral_m: f64,
@@ -101,6 +108,7 @@ pub struct Walker {
     pub distance_m: f64,
     /// Turning points at +-half_span_m along `right`.
     pub half_span_m: f64,
+    /// Walking speed, metres per second.
     pub speed_mps: f64,
     /// Start position along the back-and-forth loop (metres).
     pub phase_m: f64,
@@ -108,6 +116,7 @@ pub struct Walker {
     pub height_offset_m: f64,
     /// Amplitude and period of the slow sway in distance.
     pub sway_m: f64,
+    /// Period of the sway, seconds.
     pub sway_period_s: f64,
 }
 
@@ -139,17 +148,24 @@ pub enum Occlusion {
 /// What a scene asks for.
 #[derive(Debug, Clone, Serialize)]
 pub struct WalkOptions {
+    /// People to walk.
     pub objects: usize,
     /// Carried boxes besides the people (ids after theirs).
     #[serde(default)]
     pub boxes: usize,
+    /// Walking speed, metres per second.
     pub speed_mps: f64,
+    /// Nearest distance from the first camera, metres.
     pub near_m: f64,
+    /// Farthest distance from the first camera, metres.
     pub far_m: f64,
     /// Height of the person cut-out in the world (metres).
     pub height_m: f64,
+    /// Seeds the walks (same seed, same scene).
     pub seed: u64,
+    /// Whether the scene's depth hides people.
     pub occlusion: Occlusion,
+    /// Which behaviours the people take.
     #[serde(default)]
     pub behaviours: Behaviours,
 }
@@ -171,6 +187,7 @@ impl Default for WalkOptions {
 }
 
 impl WalkOptions {
+    /// Checks the options' ranges; the error names the option.
     pub fn validate(&self) -> Result<(), String> {
         if self.objects + self.boxes == 0 || self.objects + self.boxes > 255 {
             return Err(format!(

@@ -97,15 +97,7 @@ const FLOW_LEVELS: usize = 3;
 
 /// The pyramid optical flow reads, of the grey image.
 fn flow_pyramid(gray: &GrayU8) -> Pyramid {
-    let data = gray.data.iter().map(|&v| v as f32).collect();
-    Pyramid::new(
-        Gray {
-            width: gray.width,
-            height: gray.height,
-            data,
-        },
-        FLOW_LEVELS,
-    )
+    Pyramid::new(Gray::from_u8(gray), FLOW_LEVELS)
 }
 
 impl Frame {

@@ -87,11 +87,19 @@ pub struct GrayU8 {
     pub data: Vec<u8>,
 }
 
+/// The project's one RGB-to-grey formula: BT.601 luma weights in 1/256
+/// (0.301, 0.586, 0.113; they sum to 256), rounded down to whole levels.
+/// ORB extraction reads it ([`GrayU8::from_rgb`]), and so does optical flow
+/// ([`crate::flow::pyramid::Gray::from_rgb`]).
+pub const LUMA_WEIGHTS: [u32; 3] = [77, 150, 29];
+
 impl GrayU8 {
+    /// Luma of an RGB8 image ([`LUMA_WEIGHTS`]), rounded down.
     pub fn from_rgb(rgb: &[u8], width: usize, height: usize) -> Self {
+        let [wr, wg, wb] = LUMA_WEIGHTS;
         let data = rgb
             .chunks_exact(3)
-            .map(|p| ((77 * p[0] as u32 + 150 * p[1] as u32 + 29 * p[2] as u32) >> 8) as u8)
+            .map(|p| ((wr * p[0] as u32 + wg * p[1] as u32 + wb * p[2] as u32) >> 8) as u8)
             .collect();
         Self {
             width,

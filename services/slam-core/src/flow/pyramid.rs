@@ -1,5 +1,7 @@
 //! Grey images and Gaussian-ish pyramids for point tracking.
 
+use crate::features::orb::GrayU8;
+
 /// A single-channel float image, row-major.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Gray {
@@ -12,16 +14,20 @@ pub struct Gray {
 }
 
 impl Gray {
-    /// Luma of an RGB8 image (BT.601 weights).
+    /// Luma of an RGB8 image by the project's one RGB-to-grey formula
+    /// ([`GrayU8::from_rgb`], what ORB extraction reads), as floats: the
+    /// propagator's flow and the SLAM's flow frames see the grey values the
+    /// features do.
     pub fn from_rgb(rgb: &[u8], width: usize, height: usize) -> Self {
-        let data = rgb
-            .chunks_exact(3)
-            .map(|p| 0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32)
-            .collect();
+        Self::from_u8(&GrayU8::from_rgb(rgb, width, height))
+    }
+
+    /// A grey image's values as floats.
+    pub fn from_u8(gray: &GrayU8) -> Self {
         Self {
-            width,
-            height,
-            data,
+            width: gray.width,
+            height: gray.height,
+            data: gray.data.iter().map(|&v| v as f32).collect(),
         }
     }
 

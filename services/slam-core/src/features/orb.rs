@@ -93,14 +93,17 @@ pub struct GrayU8 {
 /// ([`crate::flow::pyramid::Gray::from_rgb`]).
 pub const LUMA_WEIGHTS: [u32; 3] = [77, 150, 29];
 
+/// The grey level of one RGB8 pixel ([`LUMA_WEIGHTS`], rounded down).
+#[inline]
+pub fn luma(p: &[u8]) -> u8 {
+    let [wr, wg, wb] = LUMA_WEIGHTS;
+    ((wr * p[0] as u32 + wg * p[1] as u32 + wb * p[2] as u32) >> 8) as u8
+}
+
 impl GrayU8 {
-    /// Luma of an RGB8 image ([`LUMA_WEIGHTS`]), rounded down.
+    /// Luma of an RGB8 image ([`luma`] per pixel).
     pub fn from_rgb(rgb: &[u8], width: usize, height: usize) -> Self {
-        let [wr, wg, wb] = LUMA_WEIGHTS;
-        let data = rgb
-            .chunks_exact(3)
-            .map(|p| ((wr * p[0] as u32 + wg * p[1] as u32 + wb * p[2] as u32) >> 8) as u8)
-            .collect();
+        let data = rgb.chunks_exact(3).map(luma).collect();
         Self {
             width,
             height,

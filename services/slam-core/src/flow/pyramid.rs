@@ -1,6 +1,6 @@
 //! Grey images and Gaussian-ish pyramids for point tracking.
 
-use crate::features::orb::GrayU8;
+use crate::features::orb::{luma, GrayU8};
 
 /// A single-channel float image, row-major.
 #[derive(Debug, Clone, PartialEq)]
@@ -19,7 +19,14 @@ impl Gray {
     /// propagator's flow and the SLAM's flow frames see the grey values the
     /// features do.
     pub fn from_rgb(rgb: &[u8], width: usize, height: usize) -> Self {
-        Self::from_u8(&GrayU8::from_rgb(rgb, width, height))
+        // One pass, no grey u8 image in between (the propagator does this
+        // every frame).
+        let data = rgb.chunks_exact(3).map(|p| luma(p) as f32).collect();
+        Self {
+            width,
+            height,
+            data,
+        }
     }
 
     /// A grey image's values as floats.

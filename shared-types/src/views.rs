@@ -4,6 +4,7 @@
 
 use crate::{read_error_text, FrameHeader, MaskSource, MasksHeader};
 use anyhow::{bail, Result};
+use raster::{ImageView, RgbView};
 
 /// One frame read in place.
 #[derive(Clone, Copy)]
@@ -55,12 +56,17 @@ impl<'a> FrameView<'a> {
         self.header.height as usize
     }
 
+    /// The frame's colour, read in place.
+    pub fn colour(&self) -> RgbView<'a> {
+        // `new` checked the length against the header's size.
+        RgbView::from_bytes(self.rgb, self.width(), self.height())
+            .expect("FrameView::new checked the colour's size")
+    }
+
     /// The frame's depth with its scale, when it has depth.
     pub fn depth_image(&self) -> Option<DepthImage<'a>> {
-        self.depth.map(|raw| DepthImage {
-            raw,
-            per_metre: self.header.depth_scale,
-        })
+        let raw = self.depth?;
+        DepthImage::new(raw, self.width(), self.height(), self.header.depth_scale)
     }
 
     /// Depth value at a pixel (raw units; divide by `depth_scale` for metres).
@@ -71,32 +77,40 @@ impl<'a> FrameView<'a> {
     }
 }
 
-/// Depth of a frame: native-endian u16 values, `per_metre` units a metre.
+/// Depth of a frame: native-endian u16 values, `per_metre` units a metre,
+/// read in place (the bytes need no alignment).
 #[derive(Debug, Clone, Copy)]
 pub struct DepthImage<'a> {
-    /// The u16 values' bytes, row-major (0: no measurement).
-    pub raw: &'a [u8],
+    /// Each pixel's two bytes (0: no measurement).
+    pub image: ImageView<'a, [u8; 2]>,
     /// Raw units per metre (TUM: 5000).
     pub per_metre: f32,
 }
 
-impl DepthImage<'_> {
+impl<'a> DepthImage<'a> {
+    /// `raw` (two native-endian bytes a pixel) as a `width x height` depth
+    /// image; None when it is not exactly that size.
+    pub fn new(raw: &'a [u8], width: usize, height: usize, per_metre: f32) -> Option<Self> {
+        Some(Self {
+            image: ImageView::from_bytes(raw, width, height)?,
+            per_metre,
+        })
+    }
+
     /// The raw value at a pixel, None where there is no measurement.
-    fn raw_at(&self, x: usize, y: usize, width: usize) -> Option<f64> {
-        let i = (y * width + x) * 2;
-        let raw = u16::from_ne_bytes([*self.raw.get(i)?, *self.raw.get(i + 1)?]);
+    fn raw_at(&self, x: usize, y: usize) -> Option<f64> {
+        let raw = u16::from_ne_bytes(self.image.get(x, y)?);
         (raw > 0 && self.per_metre > 0.0).then_some(raw as f64)
     }
 
     /// Inverse depth (1/m) at a pixel, None where there is no measurement.
-    pub fn inverse_at(&self, x: usize, y: usize, width: usize) -> Option<f64> {
-        self.raw_at(x, y, width)
-            .map(|raw| self.per_metre as f64 / raw)
+    pub fn inverse_at(&self, x: usize, y: usize) -> Option<f64> {
+        self.raw_at(x, y).map(|raw| self.per_metre as f64 / raw)
     }
 
     /// Depth (m) at a pixel, None where there is no measurement.
-    pub fn metres_at(&self, x: usize, y: usize, width: usize) -> Option<f32> {
-        self.raw_at(x, y, width)
+    pub fn metres_at(&self, x: usize, y: usize) -> Option<f32> {
+        self.raw_at(x, y)
             .map(|raw| (raw / self.per_metre as f64) as f32)
     }
 }

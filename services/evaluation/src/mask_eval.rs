@@ -425,10 +425,10 @@ pub fn evaluate(
             Some(path) => {
                 depth_buf.resize(w * h * 2, 0);
                 decode_depth_into(path, (w as u32, h as u32), &mut depth_buf)?;
-                Some(DepthImage {
-                    raw: &depth_buf,
-                    per_metre: config.source.depth_scale,
-                })
+                Some(
+                    DepthImage::new(&depth_buf, w, h, config.source.depth_scale)
+                        .context("depth buffer size")?,
+                )
             }
             _ => None,
         };

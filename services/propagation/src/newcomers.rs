@@ -34,7 +34,7 @@ use slam_core::geometry::ransac::Ransac;
 use slam_core::Camera;
 
 use crate::lk::{track, LkParams};
-use crate::pyramid::{Gray, Pyramid};
+use crate::pyramid::{GrayF32, Pyramid};
 
 /// The newcomer check's parameters.
 #[derive(Debug, Clone, Copy)]
@@ -435,7 +435,7 @@ impl NewcomerCheck {
         let (width, height) = (base.width, base.height);
         if cur.levels.first().map(|g| (g.width, g.height)) != Some((width, height))
             || followed.iter().any(|m| m.len() != width * height)
-            || depth.raw.len() < width * height * 2
+            || (depth.image.width, depth.image.height) != (width, height)
         {
             return None;
         }
@@ -536,7 +536,7 @@ impl NewcomerCheck {
             if ix >= width || iy >= height {
                 continue;
             }
-            let Some(inverse_depth) = depth.inverse_at(ix, iy, width) else {
+            let Some(inverse_depth) = depth.inverse_at(ix, iy) else {
                 continue;
             };
             let c = &self.camera;
@@ -645,7 +645,7 @@ struct StructureTensor {
 }
 
 impl StructureTensor {
-    fn new(g: &Gray) -> Self {
+    fn new(g: &GrayF32) -> Self {
         let (w, h) = (g.width, g.height);
         let stride = w + 1;
         let mut sums = [
@@ -797,7 +797,7 @@ mod tests {
             }
         }
         Pyramid::new(
-            Gray {
+            GrayF32 {
                 width: W,
                 height: H,
                 data,
@@ -813,10 +813,7 @@ mod tests {
 
     /// `raw` depth (5000 units a metre) as the check reads it.
     fn depth_view(raw: &[u8]) -> DepthImage<'_> {
-        DepthImage {
-            raw,
-            per_metre: 5000.0,
-        }
+        DepthImage::new(raw, W, H, 5000.0).unwrap()
     }
 
     fn camera() -> Camera {

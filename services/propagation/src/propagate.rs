@@ -20,7 +20,7 @@ use shared_types::Instance;
 
 use crate::lk::LkParams;
 use crate::newcomers::{DepthImage, Newcomer, NewcomerCheck};
-use crate::pyramid::{Gray, Pyramid};
+use crate::pyramid::{GrayF32, Pyramid};
 use crate::warp::{follow, object_points, track_points, warp_mask};
 pub use crate::warp::{robust_affine, Affine};
 
@@ -194,7 +194,7 @@ impl LkPropagator {
 
     fn pyramid(&self, rgb: &[u8], width: usize, height: usize) -> Arc<Pyramid> {
         Arc::new(Pyramid::new(
-            Gray::from_rgb(rgb, width, height),
+            GrayF32::from_rgb(rgb, width, height),
             self.params.pyramid_levels,
         ))
     }
@@ -379,8 +379,8 @@ impl LkPropagator {
         if self.measurable.len() != pixels {
             self.measurable = vec![false; pixels];
         }
-        for (m, raw) in self.measurable.iter_mut().zip(depth.raw.chunks_exact(2)) {
-            *m |= raw != [0, 0];
+        for (m, raw) in self.measurable.iter_mut().zip(depth.image.data) {
+            *m |= *raw != [0, 0];
         }
     }
 

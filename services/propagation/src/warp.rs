@@ -521,7 +521,7 @@ impl<'a> DepthGate<'a> {
             .filter_map(|(x, y)| {
                 let (ix, iy) = (x.round(), y.round());
                 (ix >= 0.0 && iy >= 0.0 && (ix as usize) < width && (iy as usize) < height)
-                    .then(|| depth.metres_at(ix as usize, iy as usize, width))
+                    .then(|| depth.metres_at(ix as usize, iy as usize))
                     .flatten()
             })
             .collect();
@@ -540,7 +540,7 @@ impl<'a> DepthGate<'a> {
     }
 
     fn allows(&self, x: usize, y: usize) -> bool {
-        match self.depth.metres_at(x, y, self.width) {
+        match self.depth.metres_at(x, y) {
             Some(z) => (self.near..=self.far).contains(&z),
             None => !self
                 .measurable

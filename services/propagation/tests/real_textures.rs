@@ -319,10 +319,7 @@ fn with_depth_an_object_that_walked_in_leaves_no_band_behind() {
                 .iter()
                 .flat_map(|&m| if m { 5000u16 } else { 10000 }.to_ne_bytes())
                 .collect();
-            let depth = with_depth.then_some(DepthImage {
-                raw: &depth,
-                per_metre: 5000.0,
-            });
+            let depth = with_depth.then(|| DepthImage::new(&depth, W, H, 5000.0).unwrap());
             let mut labels = vec![0u8; W * H];
             assert_eq!(p.propagate_rgbd(&rgb, depth, W, H, &mut labels).len(), 1);
             last = iou(&labels, &truth);

@@ -81,7 +81,7 @@ pub fn stands_out(
     height: usize,
     p: &ForegroundParams,
 ) -> bool {
-    if pixels.is_empty() || depth.raw.len() < width * height * 2 {
+    if pixels.is_empty() || (depth.image.width, depth.image.height) != (width, height) {
         return false;
     }
     let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
@@ -97,7 +97,7 @@ pub fn stands_out(
     let mut inside: Vec<f32> = pixels
         .iter()
         .step_by(stride)
-        .filter_map(|&i| depth.metres_at(i as usize % width, i as usize / width, width))
+        .filter_map(|&i| depth.metres_at(i as usize % width, i as usize / width))
         .collect();
     let sampled = pixels.len().div_ceil(stride);
     if inside.len() < MIN_SAMPLES || (inside.len() as f32) < p.min_measured * sampled as f32 {
@@ -131,7 +131,7 @@ pub fn stands_out(
             if in_box && member[(y - y0) * bw + (x - x0)] {
                 continue;
             }
-            let Some(d) = depth.metres_at(x, y, width) else {
+            let Some(d) = depth.metres_at(x, y) else {
                 continue;
             };
             if d > median + gap {
@@ -178,10 +178,7 @@ mod tests {
     }
 
     fn check(raw: &[u8], mask: &[u32]) -> bool {
-        let depth = DepthImage {
-            raw,
-            per_metre: 1000.0,
-        };
+        let depth = DepthImage::new(raw, W, H, 1000.0).unwrap();
         stands_out(mask, &depth, W, H, &ForegroundParams::default())
     }
 
@@ -241,6 +238,17 @@ mod tests {
     fn without_depth_there_is_no_verdict() {
         let raw = depth_bytes(|x, y| if inside(x, y) { 0 } else { 3000 });
         assert!(!check(&raw, &square(20, 16, 16)));
-        assert!(!check(&[], &square(20, 16, 16)));
+        // Depth of another size than the mask's image: no verdict (and an
+        // empty buffer is no depth image at all).
+        let standing = depth_bytes(|x, y| if inside(x, y) { 1000 } else { 3000 });
+        let shorter = DepthImage::new(&standing[..W * (H - 1) * 2], W, H - 1, 1000.0).unwrap();
+        assert!(!stands_out(
+            &square(20, 16, 16),
+            &shorter,
+            W,
+            H,
+            &ForegroundParams::default()
+        ));
+        assert!(DepthImage::new(&[], W, H, 1000.0).is_none());
     }
 }

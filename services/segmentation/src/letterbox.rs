@@ -1,6 +1,8 @@
 //! Aspect-preserving resize into a square network input with grey padding
 //! (value 114/255), as the YOLOv8 export expects, and the inverse mapping.
 
+use raster::RgbView;
+
 /// Geometry of one letterbox.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Letterbox {
@@ -42,7 +44,8 @@ impl Letterbox {
 
     /// Writes the planar RGB float input (`3*size*size`, values 0..1) from an
     /// RGB8 image, bilinear with pixel centres aligned (OpenCV INTER_LINEAR).
-    pub fn fill_input(&self, rgb: &[u8], width: usize, height: usize, out: &mut [f32]) {
+    pub fn fill_input(&self, rgb: RgbView, out: &mut [f32]) {
+        let (width, height) = (rgb.width, rgb.height);
         let plane = self.size * self.size;
         out.fill(PAD_VALUE);
         let sx = width as f32 / self.inner_w as f32;
@@ -59,7 +62,7 @@ impl Letterbox {
                 let wx = fx - x0 as f32;
                 let o = (y + self.pad_y) * self.size + x + self.pad_x;
                 for c in 0..3 {
-                    let p = |xx: usize, yy: usize| rgb[(yy * width + xx) * 3 + c] as f32;
+                    let p = |xx: usize, yy: usize| rgb.at(xx, yy)[c] as f32;
                     let top = p(x0, y0) * (1.0 - wx) + p(x1, y0) * wx;
                     let bottom = p(x0, y1) * (1.0 - wx) + p(x1, y1) * wx;
                     out[c * plane + o] = (top * (1.0 - wy) + bottom * wy) / 255.0;
@@ -105,7 +108,7 @@ mod tests {
         let lb = Letterbox::new(4, 2, 4);
         let rgb = vec![255u8; 4 * 2 * 3];
         let mut out = vec![0.0; 3 * 16];
-        lb.fill_input(&rgb, 4, 2, &mut out);
+        lb.fill_input(RgbView::from_bytes(&rgb, 4, 2).unwrap(), &mut out);
         // Rows 0 and 3 are padding, rows 1-2 are the (white) image.
         assert!((out[0] - PAD_VALUE).abs() < 1e-6);
         assert!((out[4] - 1.0).abs() < 1e-6 && (out[11] - 1.0).abs() < 1e-6);

@@ -11,6 +11,7 @@ use ort::session::Session;
 use ort::value::TensorRef;
 use pipeline_config::{ClockMode, SegmenterConfig};
 use provision::InputError;
+use raster::RgbView;
 use shared_types::views::{DepthImage, FrameView, MasksView};
 use shared_types::Instance;
 
@@ -262,8 +263,14 @@ impl YoloSeg {
         labels: &mut [u8],
     ) -> Result<Vec<Instance>> {
         let n = self.settings.input_size;
+        let colour = RgbView::from_bytes(rgb, width, height).with_context(|| {
+            format!(
+                "colour image of {} bytes is not {width}x{height} RGB8",
+                rgb.len()
+            )
+        })?;
         let lb = Letterbox::new(width, height, n);
-        lb.fill_input(rgb, width, height, &mut self.input);
+        lb.fill_input(colour, &mut self.input);
         let input = TensorRef::from_array_view(([1usize, 3, n, n], &self.input[..]))?;
         let outputs = self.session.run(ort::inputs!["images" => input])?;
         let (shape0, out0) = outputs["output0"].try_extract_tensor::<f32>()?;

@@ -181,6 +181,13 @@ fn only_dynamic_classes_become_masks() {
     let inst = m.segment(&rgb, w, h, &mut labels).unwrap();
     assert!(inst.is_empty(), "{inst:?}");
     assert!(labels.iter().all(|&l| l == 0));
+    // A colour buffer that is not the size given is a named error, not a
+    // panic.
+    let err = m
+        .segment(&rgb[..rgb.len() - 3], w, h, &mut labels)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("is not 640x480 RGB8"), "{err}");
 }
 
 #[test]
@@ -469,10 +476,7 @@ fn weak_detections_need_depth_or_a_followed_object_to_become_masks() {
     let (mut area_strict, mut area_weak, mut area_all) = (0, 0, 0);
     let mut labels = vec![0u8; w * h];
     for (rgb, depth) in &frames {
-        let depth = shared_types::views::DepthImage {
-            raw: depth,
-            per_metre: 5000.0,
-        };
+        let depth = shared_types::views::DepthImage::new(depth, w, h, 5000.0).unwrap();
         labels.fill(0);
         strict
             .segment_rgbd(rgb, Some(depth), None, w, h, &mut labels)

@@ -8,7 +8,7 @@ use crate::camera::{Bounds, Camera};
 use crate::features::grid::Grid;
 use crate::features::mask::DynamicMask;
 use crate::features::orb::{Descriptor, GrayU8, KeyPoint, OrbExtractor};
-use crate::flow::pyramid::{Gray, Pyramid};
+use crate::flow::pyramid::{GrayF32, Pyramid};
 use crate::map::KeyFrameObservation;
 use crate::params::SlamParams;
 use crate::tracking::small_image::SmallImage;
@@ -97,7 +97,7 @@ const FLOW_LEVELS: usize = 3;
 
 /// The pyramid optical flow reads, of the grey image.
 fn flow_pyramid(gray: &GrayU8) -> Pyramid {
-    Pyramid::new(Gray::from_u8(gray), FLOW_LEVELS)
+    Pyramid::new(GrayF32::from_u8(gray), FLOW_LEVELS)
 }
 
 impl Frame {

@@ -22,7 +22,7 @@ use datasets::source::tum_folder;
 use pipeline_config::{CameraConfig, OnnxRuntimeConfig, PropagatorConfig, RoutingConfig};
 use propagation::newcomers::{DepthImage, NewcomerCheck};
 use propagation::propagate::{LkPropagator, PropagatorParams};
-use propagation::pyramid::{Gray, Pyramid};
+use propagation::pyramid::{GrayF32, Pyramid};
 use propagation::sam2::{Sam2Propagator, Sam2Settings};
 use propagation::synthetic::{iou, render};
 use shared_types::stats::percentile;
@@ -214,12 +214,9 @@ fn time_newcomer_check(
         let (w, h) = (rgb.width() as usize, rgb.height() as usize);
         depth.resize(w * h * 2, 0);
         decode_depth_into(depth_path, (w as u32, h as u32), &mut depth)?;
-        let cur = Pyramid::new(Gray::from_rgb(rgb.as_raw(), w, h), lk.pyramid_levels);
+        let cur = Pyramid::new(GrayF32::from_rgb(rgb.as_raw(), w, h), lk.pyramid_levels);
         if let Some(prev) = &prev {
-            let depth = DepthImage {
-                raw: &depth,
-                per_metre: 5000.0,
-            };
+            let depth = DepthImage::new(&depth, w, h, 5000.0).context("depth size")?;
             let t = Instant::now();
             check.check(prev, &cur, &[], depth, lk.lk);
             ms.push(t.elapsed().as_secs_f64() * 1e3);

@@ -87,10 +87,10 @@ fn main() -> Result<()> {
         })
         .collect::<Result<_>>()?;
     let depth_of = |k: usize| {
-        depths[k].as_deref().map(|raw| DepthImage {
-            raw,
-            per_metre: config.source.depth_scale,
-        })
+        // Decoded at w x h above: the size matches.
+        depths[k]
+            .as_deref()
+            .and_then(|raw| DepthImage::new(raw, w, h, config.source.depth_scale))
     };
     let families = args
         .backends

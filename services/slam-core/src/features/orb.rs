@@ -79,38 +79,15 @@ impl Default for OrbParams {
     }
 }
 
-/// Grey image, row-major u8.
-#[derive(Debug, Clone)]
-pub struct GrayU8 {
-    pub width: usize,
-    pub height: usize,
-    pub data: Vec<u8>,
+pub use raster::GrayU8;
+
+/// The pyramid's two image operations, on the one image type.
+trait PyramidLevels {
+    fn resized(&self, w: usize, h: usize) -> Self;
+    fn smoothed(&self) -> Self;
 }
 
-/// The project's one RGB-to-grey formula: BT.601 luma weights in 1/256
-/// (0.301, 0.586, 0.113; they sum to 256), rounded down to whole levels.
-/// ORB extraction reads it ([`GrayU8::from_rgb`]), and so does optical flow
-/// ([`crate::flow::pyramid::Gray::from_rgb`]).
-pub const LUMA_WEIGHTS: [u32; 3] = [77, 150, 29];
-
-/// The grey level of one RGB8 pixel ([`LUMA_WEIGHTS`], rounded down).
-#[inline]
-pub fn luma(p: &[u8]) -> u8 {
-    let [wr, wg, wb] = LUMA_WEIGHTS;
-    ((wr * p[0] as u32 + wg * p[1] as u32 + wb * p[2] as u32) >> 8) as u8
-}
-
-impl GrayU8 {
-    /// Luma of an RGB8 image ([`luma`] per pixel).
-    pub fn from_rgb(rgb: &[u8], width: usize, height: usize) -> Self {
-        let data = rgb.chunks_exact(3).map(luma).collect();
-        Self {
-            width,
-            height,
-            data,
-        }
-    }
-
+impl PyramidLevels for GrayU8 {
     /// Bilinear resize to `w x h` (pixel centres aligned): each source row
     /// is interpolated horizontally once (every output row blends two of
     /// them), then the rows are blended in contiguous, vectorisable passes.

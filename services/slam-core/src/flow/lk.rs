@@ -2,7 +2,7 @@
 //! of the Lucas Kanade feature tracker"): per level, iterative Gauss-Newton on
 //! a square window, the estimate carried from coarse to fine.
 
-use super::pyramid::{Gray, Pyramid};
+use super::pyramid::{GrayF32, Pyramid};
 
 /// Tracking parameters.
 #[derive(Debug, Clone, Copy)]
@@ -178,7 +178,7 @@ impl Window {
     /// `out`: straight from the image's rows where it lies inside (the
     /// same arithmetic as [`Window::value`], without its clamps per
     /// pixel), else pixel by pixel.
-    fn fill(&self, img: &Gray, r: isize, out: &mut Vec<f32>) {
+    fn fill(&self, img: &GrayF32, r: isize, out: &mut Vec<f32>) {
         out.clear();
         let (w, h) = (img.width as isize, img.height as isize);
         let inside =
@@ -206,9 +206,9 @@ impl Window {
     }
 
     /// The image at offset (dx, dy) from the point; positions outside it
-    /// read its border (as `Gray::sample`).
+    /// read its border (as `GrayF32::sample`).
     #[inline]
-    fn value(&self, img: &Gray, dx: isize, dy: isize) -> f32 {
+    fn value(&self, img: &GrayF32, dx: isize, dy: isize) -> f32 {
         let (w, h) = (img.width as isize - 1, img.height as isize - 1);
         let (x, y) = (self.x0 + dx, self.y0 + dy);
         let (xa, xb) = (x.clamp(0, w) as usize, (x + 1).clamp(0, w) as usize);
@@ -222,7 +222,7 @@ impl Window {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::flow::pyramid::Gray;
+    use crate::flow::pyramid::GrayF32;
 
     /// A smooth textured image and the same image shifted by (sx, sy).
     fn pair(sx: f32, sy: f32) -> (Pyramid, Pyramid) {
@@ -240,7 +240,7 @@ mod tests {
         }
         (
             Pyramid::new(
-                Gray {
+                GrayF32 {
                     width: w,
                     height: h,
                     data: a,
@@ -248,7 +248,7 @@ mod tests {
                 3,
             ),
             Pyramid::new(
-                Gray {
+                GrayF32 {
                     width: w,
                     height: h,
                     data: b,
@@ -305,7 +305,7 @@ mod tests {
     #[test]
     fn flat_regions_are_not_tracked() {
         let flat = Pyramid::new(
-            Gray {
+            GrayF32 {
                 width: 60,
                 height: 60,
                 data: vec![50.0; 3600],

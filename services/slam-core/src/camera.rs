@@ -9,11 +9,16 @@ use serde::{Deserialize, Serialize};
 /// An image extent in pixels: x0, x1, y0, y1.
 pub type Bounds = (f64, f64, f64, f64);
 
+/// A pinhole camera with Brown-Conrady distortion and, for RGB-D, the depth camera's virtual stereo baseline.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Camera {
+    /// Focal length in pixels, x.
     pub fx: f64,
+    /// Focal length in pixels, y.
     pub fy: f64,
+    /// Principal point, x (pixels).
     pub cx: f64,
+    /// Principal point, y (pixels).
     pub cy: f64,
     /// k1 k2 p1 p2 k3.
     pub dist: [f64; 5],
@@ -105,6 +110,7 @@ impl Camera {
         (xd * self.fx + self.cx, yd * self.fy + self.cy)
     }
 
+    /// The pixel where a point in the camera frame lands (pinhole, no distortion: undistorted keypoints are compared with it).
     pub fn project(&self, p: &Vector3<f64>) -> (f64, f64) {
         (self.fx * p.x / p.z + self.cx, self.fy * p.y / p.z + self.cy)
     }

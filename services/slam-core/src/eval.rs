@@ -21,6 +21,7 @@ use crate::io::trajectory::{Trajectory, TrajectoryError};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Alignment {
+    /// As estimated (the trajectories already share a frame).
     None,
     /// Rotation + translation (RGB-D, stereo).
     Se3,
@@ -32,17 +33,26 @@ pub enum Alignment {
 /// (population standard deviation).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Default)]
 pub struct Stats {
+    /// Root mean square.
     pub rmse: f64,
+    /// Mean.
     pub mean: f64,
+    /// Median.
     pub median: f64,
+    /// Population standard deviation.
     pub std: f64,
+    /// Smallest.
     pub min: f64,
+    /// Largest.
     pub max: f64,
+    /// Sum of squares.
     pub sse: f64,
+    /// Number of errors.
     pub count: usize,
 }
 
 impl Stats {
+    /// The statistics of `errors` (all zero for none).
     pub fn of(errors: &[f64]) -> Self {
         let n = errors.len();
         if n == 0 {
@@ -159,6 +169,7 @@ fn relative_errors(
 /// Options of [`evaluate`].
 #[derive(Debug, Clone, Copy)]
 pub struct EvalOptions {
+    /// How the estimate is aligned before ATE.
     pub alignment: Alignment,
     /// Association tolerance (seconds); the TUM benchmark uses 0.02.
     pub max_diff: f64,
@@ -179,26 +190,43 @@ impl Default for EvalOptions {
 /// Everything `dynslam eval` reports.
 #[derive(Debug, Clone, Serialize)]
 pub struct EvalSummary {
+    /// The alignment used.
     pub alignment: Alignment,
+    /// Scale of the alignment (1 unless Sim(3)).
     pub scale: f64,
+    /// Estimated poses associated with a ground-truth pose.
     pub pairs: usize,
+    /// Poses in the ground truth.
     pub gt_poses: usize,
+    /// Poses in the estimate.
     pub est_poses: usize,
+    /// ATE: root mean square of the position errors (metres).
     pub ate_rmse_m: f64,
+    /// ATE: mean (metres).
     pub ate_mean_m: f64,
+    /// ATE: median (metres).
     pub ate_median_m: f64,
+    /// ATE: standard deviation (metres).
     pub ate_std_m: f64,
+    /// ATE: smallest error (metres).
     pub ate_min_m: f64,
+    /// ATE: largest error (metres).
     pub ate_max_m: f64,
     /// Per-frame RPE (consecutive associated poses), as `evo_rpe`'s default.
     pub rpe_trans_rmse_m: f64,
+    /// Per-frame RPE: mean translation error (metres).
     pub rpe_trans_mean_m: f64,
+    /// Per-frame RPE: root mean square of the rotation error (degrees).
     pub rpe_rot_rmse_deg: f64,
+    /// Per-frame RPE: mean rotation error (degrees).
     pub rpe_rot_mean_deg: f64,
     /// RPE over `rpe_interval_s` (TUM's per-second drift).
     pub rpe_interval_s: f64,
+    /// Pose pairs `rpe_interval_s` apart.
     pub rpe_interval_pairs: usize,
+    /// Interval RPE: root mean square of the translation error (metres).
     pub rpe_interval_trans_rmse_m: f64,
+    /// Interval RPE: root mean square of the rotation error (degrees).
     pub rpe_interval_rot_rmse_deg: f64,
     /// Per associated pose: timestamp, ATE (m); for plots and reports.
     #[serde(skip)]
@@ -208,12 +236,21 @@ pub struct EvalSummary {
     pub positions: Vec<(Point3<f64>, Point3<f64>)>,
 }
 
+/// Why a trajectory could not be evaluated.
 #[derive(Debug, thiserror::Error)]
 pub enum EvalError {
+    /// A trajectory file could not be read.
     #[error(transparent)]
     Trajectory(#[from] TrajectoryError),
+    /// Too few estimated poses have a ground-truth pose at their time.
     #[error("only {pairs} poses of the estimate match ground-truth timestamps within {max_diff} s; at least 3 are needed")]
-    TooFewPairs { pairs: usize, max_diff: f64 },
+    TooFewPairs {
+        /// Associated poses.
+        pairs: usize,
+        /// The association tolerance (seconds).
+        max_diff: f64,
+    },
+    /// All associated positions coincide: no alignment.
     #[error("the alignment is degenerate (all associated positions coincide)")]
     Degenerate,
 }

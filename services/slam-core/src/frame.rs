@@ -22,7 +22,9 @@ pub struct RgbdInput<'a> {
     pub depth: &'a [u16],
     /// Labels (non-zero: dynamic object), one per pixel.
     pub mask: Option<&'a [u8]>,
+    /// Image columns.
     pub width: usize,
+    /// Image rows.
     pub height: usize,
     /// Seconds (the exposure of the middle row with a rolling shutter).
     pub timestamp: f64,
@@ -44,14 +46,17 @@ impl RgbdInput<'_> {
 /// One frame's features.
 #[derive(Clone)]
 pub struct Frame {
+    /// The keypoints (pixels as detected, distorted).
     pub kps: Vec<KeyPoint>,
     /// Undistorted keypoint pixels.
     pub un: Vec<(f64, f64)>,
+    /// One descriptor per keypoint.
     pub descs: Vec<Descriptor>,
     /// Metres, where the depth image had a value in range.
     pub depth: Vec<Option<f64>>,
     /// Colour under each keypoint.
     pub colours: Vec<[u8; 3]>,
+    /// Keypoints by image cell, for matching in a window.
     pub grid: Grid,
     /// Undistorted image extent.
     pub bounds: Bounds,
@@ -63,6 +68,7 @@ pub struct Frame {
     pub masked: usize,
     /// Image columns and rows (the rolling shutter's extent is the rows).
     pub width: usize,
+    /// See `width`.
     pub height: usize,
     /// The image averaged down and blurred: the turn since the last frame
     /// (`tracking::small_image`). Shared: tracking keeps the last one, a
@@ -77,17 +83,24 @@ pub struct Frame {
 /// Keypoints found in an image (raw pixels), their descriptors, and how
 /// many the dynamic mask rejected.
 pub struct Detected {
+    /// The keypoints kept.
     pub kps: Vec<KeyPoint>,
+    /// One descriptor per keypoint kept.
     pub descs: Vec<Descriptor>,
+    /// Keypoints dropped because the dynamic mask covers them.
     pub masked: usize,
 }
 
 /// What turns keypoints into a frame: the camera, the parameters, the
 /// undistorted image extent and the pyramid levels' scales.
 pub struct FrameContext<'a> {
+    /// The camera.
     pub camera: &'a Camera,
+    /// The SLAM settings.
     pub params: &'a SlamParams,
+    /// The undistorted image's extent (min x, max x, min y, max y).
     pub bounds: Bounds,
+    /// Each pyramid level's scale (level 0: 1).
     pub level_scales: Arc<[f64]>,
 }
 

@@ -28,6 +28,8 @@
 //! - [`loop_closing`]: loop detection (bag of words, consistency), the SE(3)
 //!   loop transform, loop fusion and the essential-graph correction.
 
+#![deny(missing_docs)]
+
 pub mod camera;
 pub mod eval;
 pub mod features;

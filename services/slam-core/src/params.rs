@@ -14,12 +14,16 @@ pub enum Sensor {
     Monocular,
 }
 
+/// What the SLAM system is tuned with ([`SlamParams::default`] for RGB-D, [`SlamParams::monocular`]).
 #[derive(Debug, Clone, Copy)]
 pub struct SlamParams {
+    /// What the camera gives.
     pub sensor: Sensor,
+    /// ORB extraction's settings.
     pub orb: OrbParams,
     /// Keypoints with depth in this range (metres) get 3D measurements.
     pub min_depth_m: f64,
+    /// See `min_depth_m`.
     pub max_depth_m: f64,
     /// Dynamic masks are grown by this many pixels before filtering.
     pub mask_dilation_px: usize,
@@ -37,6 +41,7 @@ pub struct SlamParams {
     /// counting frames alone, 0.0142 / 0.0203 m with the time too (every
     /// frame: 0.0119 m, 33 keyframes, either way)...
     pub max_frames_between_keyframes: u32,
+    /// See `max_frames_between_keyframes`.
     pub max_seconds_between_keyframes: f64,
     /// ...unless a live keyframe older than the `local_keyframes` newest was
     /// taken within this distance (metres) and angle (degrees) of the
@@ -47,6 +52,7 @@ pub struct SlamParams {
     /// way. A weakening view (ORB-SLAM2's tracked share and close points)
     /// gets its keyframe regardless.
     pub same_view_m: f64,
+    /// See `same_view_m`.
     pub same_view_deg: f64,
     /// Fewer inliers than this: the frame is lost.
     pub min_inliers: usize,
@@ -129,6 +135,7 @@ impl SlamParams {
         }
     }
 
+    /// Colour only.
     pub fn is_monocular(&self) -> bool {
         self.sensor == Sensor::Monocular
     }

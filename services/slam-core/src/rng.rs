@@ -4,13 +4,16 @@
 //! is owned here rather than taken from a crate whose streams may change
 //! between releases.
 
+/// The SplitMix64 generator: a 64-bit state, one addition and a mix per number.
 pub struct SplitMix64(u64);
 
 impl SplitMix64 {
+    /// A generator seeded with `seed`.
     pub fn new(seed: u64) -> Self {
         Self(seed)
     }
 
+    /// The next number.
     pub fn next_u64(&mut self) -> u64 {
         self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
         let mut z = self.0;

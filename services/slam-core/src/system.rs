@@ -42,19 +42,23 @@ type RawKeypoints = (Vec<(f64, f64)>, Vec<Option<f64>>);
 /// What a frame cost and produced.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct FrameCounts {
+    /// Keypoints extracted.
     pub features: u32,
     /// Corners dropped because they fell inside a dynamic mask.
     pub features_masked: u32,
     /// Features dropped after tracking because they move unlike the camera
     /// (RGB-D motion check, [`crate::tracking::motion_check`]).
     pub features_moving: u32,
+    /// Keypoints matched to map points and kept by the pose optimisation.
     pub inliers: u32,
     /// Live map points and keyframes after this frame.
     pub map_points: u32,
+    /// See `map_points`.
     pub keyframes: u32,
     /// Feature extraction, and local mapping of the keyframe whose mapping
     /// finished during this frame (microseconds).
     pub extract_us: u32,
+    /// Local mapping (and loop closing) time of a keyframe finished during this frame (microseconds).
     pub mapping_us: u32,
     /// The frame was tracked by following the last frame's points with
     /// optical flow, not by ORB extraction (`SlamParams::flow_frames`).
@@ -107,7 +111,9 @@ struct PendingKeyframe {
 pub struct FrameResult {
     /// World from camera.
     pub pose_wc: Isometry3<f64>,
+    /// How the frame was tracked.
     pub state: TrackingState,
+    /// The frame became a keyframe.
     pub keyframe_inserted: bool,
     /// The frame will become a keyframe when its better masks come
     /// ([`KeyframeTiming::AfterBetterMasks`]).
@@ -119,8 +125,11 @@ pub struct FrameResult {
     /// The next frame should become a keyframe (a hint for whoever decides
     /// which frames get fresh masks).
     pub next_needs_keyframe: bool,
+    /// What this frame counted.
     pub counts: FrameCounts,
+    /// Feature extraction time (ms).
     pub extract_ms: f64,
+    /// Tracking time (ms).
     pub track_ms: f64,
     /// The motion check's part of `track_ms` (0 when off).
     pub motion_ms: f64,
@@ -145,7 +154,9 @@ pub const YOUNG_MAP_KEYFRAMES: usize = 5;
 const RESTART_AFTER_LOST_S: f64 = 0.5;
 const RESTART_AFTER_LOST_FRAMES: u32 = 3;
 
+/// The SLAM system: tracking on the caller's thread, local mapping and loop closing on their own; frames in, poses and a map out.
 pub struct System {
+    /// The settings it runs with.
     pub params: SlamParams,
     camera: Camera,
     extractor: OrbExtractor,

@@ -29,6 +29,7 @@ impl Default for Brief {
 }
 
 impl Brief {
+    /// The fixed 256-test pattern (ORB-SLAM2's).
     pub fn new() -> Self {
         // Box-Muller on a fixed-seed stream: the descriptor layout never changes.
         let mut rng = SplitMix64::new(0x0DB5_1A11_0000_0001);

@@ -49,6 +49,7 @@ pub struct Fast<'a> {
 }
 
 impl<'a> Fast<'a> {
+    /// A detector over `img`, with the kernels to run.
     pub fn new(img: &'a GrayU8, kernels: Kernels) -> Self {
         let w = img.width as isize;
         Self {

@@ -11,6 +11,7 @@ pub struct Grid {
 }
 
 impl Grid {
+    /// The grid of undistorted keypoints `un` in a `width x height` image.
     pub fn new(un: &[(f64, f64)], width: usize, height: usize) -> Self {
         let cell = 16.0;
         let (cols, rows) = (width.div_ceil(16) + 2, height.div_ceil(16) + 2);

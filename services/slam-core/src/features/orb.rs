@@ -16,14 +16,19 @@ use super::simd::Kernels;
 /// One keypoint, in level-0 pixel coordinates of the (distorted) image.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct KeyPoint {
+    /// Column at level 0 (pixels).
     pub x: f32,
+    /// Row at level 0 (pixels).
     pub y: f32,
+    /// Pyramid level it was found at (0: full size).
     pub level: u8,
     /// Orientation (radians).
     pub angle: f32,
+    /// FAST corner score.
     pub score: f32,
 }
 
+/// A 256-bit ORB (rotated BRIEF) descriptor.
 pub type Descriptor = [u64; 4];
 
 /// Largest Hamming distance at which two descriptors are taken for the
@@ -40,12 +45,18 @@ pub fn hamming(a: &Descriptor, b: &Descriptor) -> u32 {
         + (a[3] ^ b[3]).count_ones()
 }
 
+/// What ORB extraction is tuned with (ORB-SLAM2's settings).
 #[derive(Debug, Clone, Copy)]
 pub struct OrbParams {
+    /// Keypoints per frame, over all levels.
     pub features: usize,
+    /// Pyramid levels.
     pub levels: usize,
+    /// Scale between consecutive levels.
     pub scale_factor: f32,
+    /// FAST threshold tried first in each cell.
     pub fast_threshold: u8,
+    /// FAST threshold where the first finds nothing in a cell.
     pub fast_min_threshold: u8,
     /// Worker threads for the pyramid levels (1: the caller's thread only).
     pub threads: usize,
@@ -249,6 +260,7 @@ fn disc_half_widths() -> [isize; 16] {
 
 /// The extractor: holds the fixed BRIEF pattern.
 pub struct OrbExtractor {
+    /// The settings it extracts with.
     pub params: OrbParams,
     brief: Brief,
     disc: [isize; 16],
@@ -260,6 +272,7 @@ pub struct OrbExtractor {
 }
 
 impl OrbExtractor {
+    /// An extractor with `params`.
     pub fn new(params: OrbParams) -> Self {
         Self {
             params,

@@ -11,6 +11,7 @@ use std::sync::OnceLock;
 /// The environment variable that turns the intrinsics off.
 pub const SIMD_ENV: &str = "DYNSLAM_SIMD";
 
+/// Which set of kernels FAST and BRIEF run (picked once per process from the CPU and `DYNSLAM_SIMD`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Kernels {
     /// Plain Rust, on every CPU.

@@ -11,12 +11,16 @@ use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vect
 /// A similarity transform `y = scale * R x + t`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Similarity {
+    /// Rotation.
     pub rotation: Rotation3<f64>,
+    /// Translation.
     pub translation: Vector3<f64>,
+    /// Scale (1 for a rigid transform).
     pub scale: f64,
 }
 
 impl Similarity {
+    /// The transform that changes nothing.
     pub fn identity() -> Self {
         Self {
             rotation: Rotation3::identity(),
@@ -25,6 +29,7 @@ impl Similarity {
         }
     }
 
+    /// `s R p + t`.
     pub fn apply_point(&self, p: &Vector3<f64>) -> Vector3<f64> {
         self.scale * (self.rotation * p) + self.translation
     }
@@ -56,6 +61,7 @@ impl Similarity {
         )
     }
 
+    /// The transform that undoes this one.
     pub fn inverse(&self) -> Self {
         let rotation = self.rotation.inverse();
         let scale = 1.0 / self.scale;

@@ -20,8 +20,11 @@ use crate::optimizer::pose::{chi2_threshold, is_finite_pose, optimize_pose, Obse
 /// A map point matched to an (undistorted) keypoint.
 #[derive(Debug, Clone, Copy)]
 pub struct PnpMatch {
+    /// The map point (world frame).
     pub world: Vector3<f64>,
+    /// Its keypoint's undistorted pixel, column.
     pub u: f64,
+    /// Its keypoint's undistorted pixel, row.
     pub v: f64,
     /// 1 / sigma^2 of the keypoint's pyramid level.
     pub info: f64,

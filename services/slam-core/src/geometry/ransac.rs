@@ -66,7 +66,9 @@ pub(crate) fn similarity_ransac(
 pub struct Ransac {
     /// Elements per sample (drawn without repetition).
     pub sample: usize,
+    /// Hypotheses tried.
     pub iterations: usize,
+    /// Seed of the samples (runs repeat exactly).
     pub seed: u64,
 }
 

@@ -25,7 +25,9 @@ pub struct TwoViewParams {
     pub sigma: f64,
     /// The 50th smallest parallax among the triangulated points (degrees).
     pub min_parallax_deg: f64,
+    /// Fewest points triangulated well for a map to start.
     pub min_triangulated: usize,
+    /// Seed of the RANSAC samples.
     pub seed: u64,
 }
 
@@ -44,27 +46,33 @@ impl Default for TwoViewParams {
 /// Which model the motion came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum TwoViewModel {
+    /// A plane or a pure rotation (few parallax): homography.
     Homography,
+    /// A general scene: fundamental matrix.
     Fundamental,
 }
 
 /// A reconstruction: camera 2 from camera 1 and the points.
 #[derive(Debug, Clone)]
 pub struct TwoView {
+    /// Rotation of camera 2 from camera 1.
     pub rotation: Matrix3<f64>,
     /// Unit length (the scale is the map's to choose).
     pub translation: Vector3<f64>,
     /// Per match: its point in camera 1's frame where it triangulated well.
     pub points: Vec<Option<Vector3<f64>>>,
+    /// The model the motion was recovered from.
     pub model: TwoViewModel,
     /// Homography score / (homography + fundamental score).
     pub score_ratio: f64,
+    /// Median parallax of the triangulated points (degrees).
     pub parallax_deg: f64,
 }
 
 /// Why two views did not initialise (the caller tries a later frame).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum TwoViewRefusal {
+    /// Fewer matches than the models need.
     TooFewMatches(usize),
     /// No motion hypothesis triangulated enough points (the best count).
     TooFewPoints(usize),

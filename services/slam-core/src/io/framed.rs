@@ -12,15 +12,23 @@ pub const HEADER: usize = 8 + 4 + 8 + 4;
 pub enum FrameProblem {
     /// Not this magic: another kind of file.
     Foreign,
+    /// Another format version than this build reads.
     Version {
+        /// The file's version.
         found: u32,
+        /// The version this build reads.
         supported: u32,
     },
+    /// Shorter than its header promises.
     Truncated {
+        /// Bytes the header promises.
         expected: u64,
+        /// Bytes the file has.
         found: u64,
     },
+    /// Bytes after the body.
     TrailingBytes(u64),
+    /// The body does not match its checksum.
     Checksum,
 }
 

@@ -22,6 +22,7 @@ use crate::camera::Camera;
 use crate::map::Map;
 use crate::params::SlamParams;
 
+/// The first eight bytes of a map file.
 pub const MAGIC: &[u8; 8] = b"DSLAMMAP";
 /// Bumped whenever the payload's layout changes; older files are refused
 /// with both versions named (no silent misreading).
@@ -41,55 +42,85 @@ fn temporary_path(path: &Path) -> PathBuf {
 /// A map and what it was made with.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MapFile {
+    /// The camera the map was made with (a map is refused for another one).
     pub camera: Camera,
     /// The ORB pyramid: descriptors and scale ranges mean something only
     /// for the pyramid they were measured with.
     pub pyramid_levels: u32,
+    /// The pyramid's scale between levels.
     pub pyramid_scale_factor: f32,
     /// Depth range (metres) and the near-depth limit measurements used.
     pub min_depth_m: f64,
+    /// See `min_depth_m`.
     pub max_depth_m: f64,
+    /// Keypoints nearer than this were measured with their depth.
     pub close_depth_m: f64,
     /// Made by a monocular system: its unit is its own, not metres.
     pub monocular: bool,
+    /// Keyframes, points and the keyframe database.
     pub map: Map,
 }
 
 /// What is wrong with a map file.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum MapFileProblem {
+    /// Reading or writing the file failed.
     #[error("{0}")]
     Io(String),
+    /// Not a map file.
     #[error("not a dynslam map file (no DSLAMMAP header)")]
     NotAMapFile,
+    /// Another format version than this build reads.
     #[error("format version {found}, this build reads version {supported}")]
-    Version { found: u32, supported: u32 },
+    Version {
+        /// The file's version.
+        found: u32,
+        /// The version this build reads.
+        supported: u32,
+    },
+    /// Shorter than its header promises.
     #[error("truncated: the header promises {expected} bytes of map, the file has {found}")]
-    Truncated { expected: u64, found: u64 },
+    Truncated {
+        /// Bytes the header promises.
+        expected: u64,
+        /// Bytes the file has.
+        found: u64,
+    },
+    /// Bytes after the map.
     #[error("{0} bytes after the map (not written by dynslam, or two files joined)")]
     TrailingBytes(u64),
+    /// The map does not match its checksum.
     #[error("checksum mismatch: the file is corrupted")]
     Checksum,
+    /// The body could not be decoded.
     #[error("cannot decode the map: {0}")]
     Decode(String),
+    /// Decoded, but its ids or observations contradict each other.
     #[error("the map is inconsistent: {0}")]
     Inconsistent(String),
+    /// Made with another camera than the one given.
     #[error("made with another camera: {0}")]
     Camera(String),
+    /// Made with another ORB pyramid than the one configured.
     #[error("made with another ORB pyramid: {0}")]
     Pyramid(String),
+    /// Made with another sensor (RGB-D or monocular).
     #[error("made with another sensor: {0}")]
     Sensor(String),
 }
 
+/// A map file that could not be read or written, and why.
 #[derive(Debug, thiserror::Error, PartialEq)]
 #[error("map file {}: {problem}", path.display())]
 pub struct MapFileError {
+    /// The file.
     pub path: PathBuf,
+    /// What is wrong.
     pub problem: MapFileProblem,
 }
 
 impl MapFile {
+    /// A map with the camera and settings it was made with.
     pub fn new(camera: Camera, params: &SlamParams, map: Map) -> Self {
         Self {
             camera,

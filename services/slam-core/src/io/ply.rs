@@ -7,7 +7,9 @@ use std::path::Path;
 /// One map point: world position (metres) and colour.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ColouredPoint {
+    /// Position (world frame, metres).
     pub position: [f64; 3],
+    /// RGB colour.
     pub colour: [u8; 3],
 }
 

@@ -8,29 +8,48 @@ use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 /// A trajectory: poses with their timestamps, in file order.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Trajectory {
+    /// Timestamps (seconds), one per pose.
     pub stamps: Vec<f64>,
+    /// World-from-camera poses.
     pub poses: Vec<Isometry3<f64>>,
 }
 
+/// Why a TUM trajectory file could not be read.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum TrajectoryError {
+    /// The file could not be read.
     #[error("{path}: cannot read: {message}")]
-    Unreadable { path: PathBuf, message: String },
-    #[error("{path} line {line}: {message}")]
-    BadLine {
+    Unreadable {
+        /// The file.
         path: PathBuf,
-        line: usize,
+        /// Why.
         message: String,
     },
+    /// A line that is not `timestamp tx ty tz qx qy qz qw`.
+    #[error("{path} line {line}: {message}")]
+    BadLine {
+        /// The file.
+        path: PathBuf,
+        /// The line number (from 1).
+        line: usize,
+        /// What is wrong with it.
+        message: String,
+    },
+    /// No pose in the file.
     #[error("{path}: contains no poses")]
-    Empty { path: PathBuf },
+    Empty {
+        /// The file.
+        path: PathBuf,
+    },
 }
 
 impl Trajectory {
+    /// Number of poses.
     pub fn len(&self) -> usize {
         self.poses.len()
     }
 
+    /// No poses.
     pub fn is_empty(&self) -> bool {
         self.poses.is_empty()
     }
@@ -86,6 +105,7 @@ impl Trajectory {
         Ok(Self { stamps, poses })
     }
 
+    /// Reads a TUM trajectory (`timestamp tx ty tz qx qy qz qw` per line, `#` comments).
     pub fn load_tum(path: &Path) -> Result<Self, TrajectoryError> {
         let text = std::fs::read_to_string(path).map_err(|e| TrajectoryError::Unreadable {
             path: path.to_path_buf(),

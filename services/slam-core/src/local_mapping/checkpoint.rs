@@ -20,6 +20,7 @@ use crate::params::SlamParams;
 /// Where and how often.
 #[derive(Debug, Clone)]
 pub struct CheckpointPolicy {
+    /// The map file the checkpoints replace (written beside it, then renamed).
     pub path: PathBuf,
     /// A checkpoint after every this many inserted keyframes (at least 1).
     pub every_keyframes: usize,
@@ -28,7 +29,9 @@ pub struct CheckpointPolicy {
 /// What the writer has done, for whoever reports on it.
 #[derive(Debug, Default)]
 pub struct CheckpointStats {
+    /// Checkpoints written.
     pub written: AtomicUsize,
+    /// Checkpoints that failed to write.
     pub failed: AtomicUsize,
     /// Copies replaced by a newer one before the writer got to them.
     pub superseded: AtomicUsize,
@@ -80,6 +83,7 @@ pub struct Checkpointer {
 }
 
 impl Checkpointer {
+    /// Starts the writer thread, which writes with `policy` the maps it is sent.
     pub fn spawn(
         policy: CheckpointPolicy,
         camera: Camera,
@@ -130,16 +134,19 @@ impl Checkpointer {
         );
     }
 
+    /// A checkpoint after every this many keyframes.
     pub fn every_keyframes(&self) -> usize {
         self.every_keyframes
     }
 
+    /// Where local mapping sends its map copies.
     pub fn sender(&self) -> CheckpointSender {
         CheckpointSender {
             shared: self.shared.clone(),
         }
     }
 
+    /// What the writer has done so far.
     pub fn stats(&self) -> &CheckpointStats {
         &self.shared.stats
     }

@@ -20,12 +20,16 @@ pub struct MapSnapshot {
     pub newest_keyframe: usize,
     /// World-from-camera poses of the live keyframes, in id order.
     pub keyframes: Vec<Isometry3<f64>>,
+    /// The live map points.
     pub points: Vec<SnapshotPoint>,
 }
 
+/// One map point of a snapshot.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SnapshotPoint {
+    /// Position (world frame).
     pub position: Vector3<f64>,
+    /// RGB colour.
     pub colour: [u8; 3],
     /// The first live keyframe that observed it (an index into
     /// `keyframes`): where it was seen from, for free-space rays.
@@ -71,12 +75,14 @@ pub struct SnapshotSlot {
 }
 
 impl SnapshotSlot {
+    /// Leaves `snapshot` for the reader, replacing one not taken yet.
     pub fn offer(&self, snapshot: MapSnapshot) {
         if let Ok(mut slot) = self.slot.lock() {
             *slot = Some(snapshot);
         }
     }
 
+    /// The newest snapshot, if one was left since the last take.
     pub fn take(&self) -> Option<MapSnapshot> {
         self.slot.lock().ok()?.take()
     }
@@ -85,6 +91,7 @@ impl SnapshotSlot {
 /// What local mapping is asked for with a keyframe.
 #[derive(Debug, Clone)]
 pub struct SnapshotRequest {
+    /// Where the snapshot goes.
     pub slot: SnapshotSlot,
     /// The period is over: a snapshot now. Otherwise one only if this
     /// keyframe's mapping merged a closed loop.

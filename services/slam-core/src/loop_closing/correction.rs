@@ -33,6 +33,7 @@ const STRONG_COVISIBILITY: u32 = 100;
 /// A loop correction computed on a snapshot, to merge into the live map.
 #[derive(Debug, Clone)]
 pub struct LoopUpdate {
+    /// The loop closed.
     pub closure: LoopClosure,
     /// (new point, old point) pairs the correction fused.
     pub fused: Vec<(usize, usize)>,
@@ -71,8 +72,11 @@ impl LoopUpdate {
 /// What [`Map::correct_loop`] did, for the report and for a merge.
 #[derive(Debug, Clone)]
 pub struct Correction {
+    /// The loop closed.
     pub closure: LoopClosure,
+    /// (new point, old point) pairs fused.
     pub fused: Vec<(usize, usize)>,
+    /// Keyframes whose covisibility the fusion changed.
     pub reconnect: Vec<usize>,
     /// The scale of each keyframe's correction (by id).
     pub scales: Vec<f64>,

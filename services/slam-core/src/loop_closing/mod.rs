@@ -79,15 +79,19 @@ const CONFIRM_RADIUS_PX: f64 = 10.0;
 pub struct LoopClosure {
     /// The new keyframe and the old one it closed the loop with.
     pub keyframe: usize,
+    /// See `keyframe`.
     pub matched: usize,
     /// RANSAC inliers of the transform and matches confirming it.
     pub inliers: usize,
+    /// See `inliers`.
     pub confirmed: usize,
     /// How far the new keyframe moved (metres, degrees).
     pub correction_m: f64,
+    /// See `correction_m`.
     pub correction_deg: f64,
     /// Points fused with the old map, keyframes the essential graph moved.
     pub fused: usize,
+    /// See `fused`.
     pub keyframes_moved: usize,
     /// The loop transform's scale: the drifted map's size against the old
     /// map's where the loop closed (1 with depth).
@@ -103,9 +107,13 @@ pub struct LoopReport {
     /// loop-closing thread, which only verifies), verifying them,
     /// correcting and in global bundle adjustment.
     pub detect_ms: f64,
+    /// See `detect_ms`.
     pub verify_ms: f64,
+    /// See `detect_ms`.
     pub correct_ms: f64,
+    /// See `detect_ms`.
     pub global_ba_ms: f64,
+    /// The loop closed, if one did.
     pub closed: Option<LoopClosure>,
 }
 
@@ -113,7 +121,9 @@ pub struct LoopReport {
 /// closed, the correction to merge into the map.
 #[derive(Debug, Clone)]
 pub struct LoopOutcome {
+    /// What was looked for and found.
     pub report: LoopReport,
+    /// The correction to merge, when a loop closed.
     pub update: Option<LoopUpdate>,
 }
 
@@ -134,13 +144,16 @@ pub struct LoopCloser {
 /// A verified loop: the matched keyframe, the corrected pose of the new
 /// keyframe and the point matches.
 pub struct LoopGeometry {
+    /// The old keyframe the loop closes with.
     pub matched: usize,
     /// Camera from world of the new keyframe, in the old map's frame (and,
     /// monocular, with the new keyframe's scale against the old map's).
     pub corrected_cw: Similarity,
     /// (new point, old point) pairs: the same place, measured twice.
     pub point_pairs: Vec<(usize, usize)>,
+    /// RANSAC inliers of the transform.
     pub inliers: usize,
+    /// Matches the transform confirmed by projection.
     pub confirmed: usize,
 }
 

@@ -21,8 +21,11 @@ use crate::params::SlamParams;
 
 /// Loop closing as the system runs it.
 pub enum LoopClosing {
+    /// No loop closing.
     Off,
+    /// On the mapping thread, after each keyframe's mapping.
     Inline(LoopCloser),
+    /// On its own thread, on snapshots of the map.
     OnThread(LoopClosingThread),
 }
 

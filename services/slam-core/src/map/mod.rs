@@ -30,7 +30,9 @@ pub(crate) const SECOND_NEIGHBOURS: usize = 5;
 /// keeps the invariants [`Map::check_invariants`] checks.
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct Map {
+    /// The map points, by id (culled ones stay until compaction).
     pub points: Vec<MapPoint>,
+    /// The keyframes, by id (culled ones stay until compaction).
     pub keyframes: Vec<KeyFrame>,
     /// Points culled so far (their slots stay).
     pub(crate) culled_points: usize,
@@ -45,6 +47,7 @@ pub struct MappingReport {
     pub ms: f64,
     /// Local bundle adjustment or a loop correction moved keyframe poses.
     pub adjusted: bool,
+    /// What local mapping added and merged.
     pub counts: MappingCounts,
     /// What the loop closer reported meanwhile (when loop closing is on):
     /// inline, about this keyframe; on its thread, about earlier ones.
@@ -70,15 +73,19 @@ impl std::ops::AddAssign for MappingCounts {
     }
 }
 
+/// A 3D point of the map.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MapPoint {
+    /// Position (world frame).
     pub position: Vector3<f64>,
+    /// The descriptor it is matched by.
     pub descriptor: Descriptor,
     /// Keyframes that measured it (ids, in insertion order).
     pub observers: Vec<usize>,
     /// Frames in which it was predicted visible / actually matched; 0
     /// visible: culled (never matched again, dropped at the next compaction).
     pub visible: u32,
+    /// See `visible`.
     pub found: u32,
     /// Colour of the pixel it was created from (for the PLY map).
     pub colour: [u8; 3],
@@ -135,7 +142,9 @@ impl MapPoint {
 /// A map point as one keyframe measured it (for bundle adjustment).
 #[derive(Debug, Clone, Copy, Serialize, Deserialize)]
 pub struct KeyFrameObservation {
+    /// Undistorted pixel, column.
     pub u: f64,
+    /// Undistorted pixel, row.
     pub v: f64,
     /// `u - bf / depth` when the keypoint had depth.
     pub ur: Option<f64>,
@@ -165,10 +174,13 @@ impl KeyFrameObservation {
 /// give it one.
 #[derive(Debug, Clone, Copy, Serialize, Deserialize)]
 pub struct SpareKeypoint {
+    /// The keypoint as a measurement.
     pub measurement: KeyFrameObservation,
+    /// RGB colour under it.
     pub colour: [u8; 3],
 }
 
+/// A keyframe: its pose, the points it measured and the keypoints that are no point yet.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct KeyFrame {
     /// Camera from world.

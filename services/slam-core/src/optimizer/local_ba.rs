@@ -26,9 +26,13 @@ use crate::camera::Camera;
 /// problem's arrays).
 #[derive(Debug, Clone, Copy)]
 pub struct BaObservation {
+    /// Index of the keyframe pose.
     pub pose: usize,
+    /// Index of the point.
     pub point: usize,
+    /// Undistorted pixel, column.
     pub u: f64,
+    /// Undistorted pixel, row.
     pub v: f64,
     /// `u - bf / depth` when the keypoint had depth.
     pub ur: Option<f64>,

@@ -10,8 +10,11 @@ use crate::camera::Camera;
 /// One map point seen in the frame.
 #[derive(Debug, Clone, Copy)]
 pub struct Observation {
+    /// The map point (world frame).
     pub world: Vector3<f64>,
+    /// Its keypoint's undistorted pixel, column.
     pub u: f64,
+    /// Its keypoint's undistorted pixel, row.
     pub v: f64,
     /// `u - bf / depth` when the keypoint has depth.
     pub ur: Option<f64>,
@@ -237,8 +240,11 @@ pub type Twist = Vector6<f64>;
 /// is (standard deviations: rad/s for the rotation, m/s for the velocity).
 #[derive(Debug, Clone, Copy)]
 pub struct TwistPrior {
+    /// The expected twist.
     pub twist: Twist,
+    /// Standard deviation of the rotation rate (rad/s).
     pub sigma_rotation: f64,
+    /// Standard deviation of the velocity (m/s).
     pub sigma_velocity: f64,
 }
 

@@ -25,7 +25,9 @@ type Tangent = SVector<f64, 7>;
 /// A measured relative pose between two keyframes.
 #[derive(Debug, Clone, Copy)]
 pub struct PoseEdge {
+    /// Index of the first pose.
     pub from: usize,
+    /// Index of the second pose.
     pub to: usize,
     /// `S_from * S_to^-1` (camera-from-world poses): `to`'s camera in
     /// `from`'s.
@@ -37,8 +39,11 @@ pub struct PoseEdge {
 /// What the optimisation did.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PoseGraphReport {
+    /// Cost before the optimisation.
     pub initial_cost: f64,
+    /// Cost after it.
     pub final_cost: f64,
+    /// Gauss-Newton iterations run.
     pub iterations: usize,
 }
 

@@ -17,6 +17,7 @@ const MIN_COMMON_WORDS: f32 = 0.8;
 /// (ORB-SLAM2: 0.75).
 const MIN_GROUP_SCORE: f32 = 0.75;
 
+/// Keyframes by visual word (an inverted index), for relocalisation and loop detection.
 #[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
 pub struct KeyframeDatabase {
     /// The id of the vocabulary the vectors were made with (0: none yet).
@@ -79,6 +80,7 @@ impl KeyframeDatabase {
         self.vectors.iter().flatten().count()
     }
 
+    /// No keyframe in it.
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }

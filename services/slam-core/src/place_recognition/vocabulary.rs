@@ -24,6 +24,7 @@ use crate::features::orb::{hamming, Descriptor};
 use crate::io::framed::{frame, unframe, FrameProblem};
 use crate::rng::SplitMix64;
 
+/// The first eight bytes of a vocabulary file.
 pub const MAGIC: &[u8; 8] = b"DSLAMVOC";
 /// Bumped whenever the payload's layout changes.
 pub const VERSION: u32 = 1;
@@ -106,6 +107,7 @@ impl BowVector {
         self.0.iter().map(|w| w.0)
     }
 
+    /// No words (not trained).
     pub fn is_empty(&self) -> bool {
         self.0.is_empty()
     }
@@ -137,7 +139,9 @@ impl Default for TrainOptions {
 /// Training's progress, for a progress line.
 #[derive(Debug, Clone, Copy)]
 pub struct LevelDone {
+    /// The level just done (from 1).
     pub level: usize,
+    /// Levels in all.
     pub levels: usize,
     /// Nodes made at this level.
     pub nodes: usize,
@@ -146,30 +150,52 @@ pub struct LevelDone {
 /// What is wrong with a vocabulary (file or training input).
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum VocabularyProblem {
+    /// Reading or writing the file failed.
     #[error("{0}")]
     Io(String),
+    /// Not a vocabulary file.
     #[error("not a dynslam vocabulary (no DSLAMVOC header)")]
     NotAVocabulary,
+    /// Another format version than this build reads.
     #[error("format version {found}, this build reads version {supported}")]
-    Version { found: u32, supported: u32 },
+    Version {
+        /// The file's version.
+        found: u32,
+        /// The version this build reads.
+        supported: u32,
+    },
+    /// Shorter than its header promises.
     #[error("truncated: the header promises {expected} bytes, the file has {found}")]
-    Truncated { expected: u64, found: u64 },
+    Truncated {
+        /// Bytes the header promises.
+        expected: u64,
+        /// Bytes the file has.
+        found: u64,
+    },
+    /// Bytes after the vocabulary.
     #[error("{0} bytes after the vocabulary (not written by dynslam, or two files joined)")]
     TrailingBytes(u64),
+    /// The body does not match its checksum.
     #[error("checksum mismatch: the file is corrupted")]
     Checksum,
+    /// The body could not be decoded.
     #[error("cannot decode the vocabulary: {0}")]
     Decode(String),
+    /// Decoded, but the tree is not a tree.
     #[error("malformed tree: {0}")]
     Malformed(String),
+    /// Training could not run on the input given.
     #[error("cannot train: {0}")]
     Training(String),
 }
 
+/// A vocabulary file that could not be read, written or trained, and why.
 #[derive(Debug, thiserror::Error, PartialEq)]
 #[error("vocabulary {}: {problem}", path.display())]
 pub struct VocabularyError {
+    /// The file.
     pub path: PathBuf,
+    /// What is wrong.
     pub problem: VocabularyProblem,
 }
 
@@ -201,14 +227,17 @@ impl Vocabulary {
         self.id
     }
 
+    /// Number of words (leaves).
     pub fn words(&self) -> usize {
         self.idf.len()
     }
 
+    /// Children per node.
     pub fn branching(&self) -> usize {
         self.branching as usize
     }
 
+    /// Depth of the tree.
     pub fn levels(&self) -> usize {
         self.levels as usize
     }

@@ -73,10 +73,12 @@ fn has_old_keyframe_at(
 pub enum TrackingState {
     /// No map yet (the first frame lacked depth).
     NotInitialised,
+    /// Tracked from the motion model or the last pose.
     Ok,
     /// Found again after being lost (relocalisation), or for the first
     /// time in a loaded map.
     Relocalised,
+    /// Not tracked: relocalisation is tried on the next frames.
     Lost,
     /// Not tracked: malformed input (buffers that do not match the size).
     Skipped,
@@ -143,6 +145,7 @@ pub struct Tracking {
 }
 
 impl Tracking {
+    /// Tracking with `camera` and `params`; lost frames are looked up with `vocabulary`.
     pub fn new(camera: Camera, params: SlamParams, vocabulary: Arc<Vocabulary>) -> Self {
         Self {
             camera,

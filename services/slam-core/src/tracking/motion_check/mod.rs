@@ -56,6 +56,7 @@ pub struct MotionCheckParams {
     /// the image over the frames' time apart at its depth, plus
     /// `search_margin_px` (pose error): at 2 m and 0.1 s apart, 62 px.
     pub max_speed_mps: f64,
+    /// Pixels added around the predicted spot when looking for a keypoint again.
     pub search_margin_px: f64,
     /// A match needs at most this descriptor distance...
     pub max_hamming: u32,
@@ -66,10 +67,12 @@ pub struct MotionCheckParams {
     /// ...and in 3D at least `min_move_m + move_per_m2 * z^2` (Kinect depth
     /// noise grows with the square of the depth).
     pub min_move_m: f64,
+    /// Added to `min_move_m` per square metre of depth.
     pub move_per_m2: f64,
     /// Moved keypoints within this image distance whose shifts differ by at
     /// most `shift_tolerance_px` are one cluster...
     pub cluster_px: f64,
+    /// See `cluster_px`.
     pub shift_tolerance_px: f64,
     /// ...of at least this many keypoints...
     pub min_cluster: usize,
@@ -84,7 +87,9 @@ pub struct MotionCheckParams {
     /// (within `surface_m + surface_per_m * z`), to at most this many
     /// times its size.
     pub surface_m: f64,
+    /// Added to `surface_m` per metre of depth.
     pub surface_per_m: f64,
+    /// A region grows to at most this many times its seed's cells.
     pub max_growth: usize,
 }
 
@@ -118,13 +123,16 @@ impl Default for MotionCheckParams {
 /// the camera.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MovingRegion {
+    /// Smallest pixel (column, row).
     pub min: [f32; 2],
+    /// Largest pixel (column, row).
     pub max: [f32; 2],
     /// Keypoints of the cluster that showed the motion.
     pub evidence: usize,
 }
 
 impl MovingRegion {
+    /// Whether pixel (u, v) is inside.
     pub fn contains(&self, u: f64, v: f64) -> bool {
         (self.min[0] as f64..=self.max[0] as f64).contains(&u)
             && (self.min[1] as f64..=self.max[1] as f64).contains(&v)
@@ -194,6 +202,7 @@ struct Moved {
 }
 
 impl MotionCheck {
+    /// A check with `params`, no frame seen yet.
     pub fn new(params: MotionCheckParams) -> Self {
         Self {
             params,

@@ -179,3 +179,22 @@ fn libraries_without_ipc_do_not_depend_on_the_pipeline() {
         );
     }
 }
+
+/// Every library of the workspace says what each public item is: its
+/// `src/lib.rs` denies missing docs, so an undocumented `pub` fails the
+/// build instead of reaching a reader.
+#[test]
+fn every_library_denies_missing_docs() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let undocumented: Vec<String> = crates(root)
+        .into_iter()
+        .filter_map(|(name, dir)| {
+            let lib = std::fs::read_to_string(dir.join("src/lib.rs")).ok()?;
+            (!lib.contains("#![deny(missing_docs)]")).then_some(name)
+        })
+        .collect();
+    assert!(
+        undocumented.is_empty(),
+        "libraries without #![deny(missing_docs)] in src/lib.rs: {undocumented:?}"
+    );
+}

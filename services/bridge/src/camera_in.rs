@@ -55,17 +55,24 @@ impl Dropped {
 
 /// A colour image as RGB8 rows.
 pub struct Rgb {
+    /// When it was taken (the sample's header).
     pub stamp: Time,
+    /// Columns.
     pub width: u32,
+    /// Rows.
     pub height: u32,
+    /// RGB8, row by row, no padding.
     pub pixels: Vec<u8>,
 }
 
 /// What a colour sample says: a decodable image, a sample to drop, or a
 /// stream that cannot work.
 pub enum Decoded<T> {
+    /// The image.
     Ok(T),
+    /// This sample cannot be used (why); later ones may.
     Drop(String),
+    /// The stream cannot be used at all (why).
     Fatal(String),
 }
 
@@ -140,12 +147,17 @@ pub fn decode_colour(dds: &str, payload: &[u8]) -> Decoded<Rgb> {
 
 /// A depth image in the run's depth units (`depth_scale` per metre).
 pub struct Depth {
+    /// When it was taken (the sample's header).
     pub stamp: Time,
+    /// Columns.
     pub width: u32,
+    /// Rows.
     pub height: u32,
+    /// Depth values, row by row (0: no measurement).
     pub values: Vec<u16>,
 }
 
+/// A depth sample (`Image` 16UC1 in millimetres or 32FC1 in metres) in the run's units, `depth_scale` per metre.
 pub fn decode_depth(dds: &str, payload: &[u8], depth_scale: f32) -> Decoded<Depth> {
     if dds != msgs::IMAGE.dds {
         return Decoded::Drop(format!("type {dds}, not sensor_msgs/Image"));

@@ -18,6 +18,7 @@ pub struct Writer {
 }
 
 impl Writer {
+    /// An empty message with its encapsulation header.
     pub fn new() -> Self {
         let mut buf = Vec::with_capacity(256);
         buf.extend_from_slice(&CDR_LE);
@@ -30,25 +31,31 @@ impl Writer {
         self.buf.resize(self.buf.len() + pad, 0);
     }
 
+    /// Appends a byte.
     pub fn u8(&mut self, v: u8) {
         self.buf.push(v);
     }
+    /// Appends an `int32` (aligned).
     pub fn i32(&mut self, v: i32) {
         self.align(4);
         self.buf.extend_from_slice(&v.to_le_bytes());
     }
+    /// Appends a `uint32` (aligned).
     pub fn u32(&mut self, v: u32) {
         self.align(4);
         self.buf.extend_from_slice(&v.to_le_bytes());
     }
+    /// Appends a `float32` (aligned).
     pub fn f32(&mut self, v: f32) {
         self.align(4);
         self.buf.extend_from_slice(&v.to_le_bytes());
     }
+    /// Appends a `float64` (aligned).
     pub fn f64(&mut self, v: f64) {
         self.align(8);
         self.buf.extend_from_slice(&v.to_le_bytes());
     }
+    /// Appends a string (length with its terminating zero, bytes, zero).
     pub fn string(&mut self, s: &str) {
         self.u32(s.len() as u32 + 1);
         self.buf.extend_from_slice(s.as_bytes());
@@ -63,6 +70,7 @@ impl Writer {
         self.len(b.len());
         self.buf.extend_from_slice(b);
     }
+    /// The message's bytes.
     pub fn finish(self) -> Vec<u8> {
         self.buf
     }
@@ -71,19 +79,29 @@ impl Writer {
 /// Why a message could not be read: what was being read and where.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum CdrError {
+    /// Another encapsulation than little-endian plain CDR.
     #[error("not little-endian plain CDR (encapsulation {0:02x?})")]
     Encapsulation([u8; 4]),
+    /// The message ends before a field does.
     #[error("truncated: {what} at byte {at} needs {need} bytes, {left} left")]
     Truncated {
+        /// The field.
         what: &'static str,
+        /// Where it starts (bytes after the encapsulation).
         at: usize,
+        /// Bytes it needs.
         need: usize,
+        /// Bytes left.
         left: usize,
     },
+    /// A field whose value is not allowed.
     #[error("{what} at byte {at}: {problem}")]
     Invalid {
+        /// The field.
         what: &'static str,
+        /// Where it starts.
         at: usize,
+        /// What is wrong with it.
         problem: String,
     },
 }
@@ -98,6 +116,7 @@ pub struct Reader<'a> {
 }
 
 impl<'a> Reader<'a> {
+    /// A reader of `message`, after checking its encapsulation header.
     pub fn new(message: &'a [u8]) -> Result<Self, CdrError> {
         if message.len() < 4 {
             return Err(CdrError::Truncated {
@@ -132,23 +151,28 @@ impl<'a> Reader<'a> {
         Ok(&self.body[start..start + n])
     }
 
+    /// Reads a byte (`what`: the field, for errors).
     pub fn u8(&mut self, what: &'static str) -> Result<u8, CdrError> {
         Ok(self.take(what, 1, 1)?[0])
     }
+    /// Reads an `int32`.
     pub fn i32(&mut self, what: &'static str) -> Result<i32, CdrError> {
         let b = self.take(what, 4, 4)?;
         Ok(i32::from_le_bytes([b[0], b[1], b[2], b[3]]))
     }
+    /// Reads a `uint32`.
     pub fn u32(&mut self, what: &'static str) -> Result<u32, CdrError> {
         let b = self.take(what, 4, 4)?;
         Ok(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
     }
+    /// Reads a `float64`.
     pub fn f64(&mut self, what: &'static str) -> Result<f64, CdrError> {
         let b = self.take(what, 8, 8)?;
         let mut a = [0u8; 8];
         a.copy_from_slice(b);
         Ok(f64::from_le_bytes(a))
     }
+    /// Reads a string (UTF-8, zero-terminated, length checked against what is left).
     pub fn string(&mut self, what: &'static str) -> Result<String, CdrError> {
         let n = self.u32(what)? as usize;
         let at = self.at + 4;

@@ -18,7 +18,9 @@ use crate::msgs::RosPose;
 /// The frames of a run, fixed by its config.
 #[derive(Debug, Clone)]
 pub struct Frames {
+    /// `map` from the SLAM's world frame.
     pub map_t_world: Isometry3<f64>,
+    /// The robot's base from the camera's optical frame.
     pub base_t_camera: Isometry3<f64>,
 }
 
@@ -47,6 +49,7 @@ pub fn from_tum(p: &[f64; 7]) -> Option<Isometry3<f64>> {
     ))
 }
 
+/// A pose as ROS 2 writes it (position, quaternion x y z w).
 pub fn to_ros(t: &Isometry3<f64>) -> RosPose {
     let q = t.rotation.quaternion();
     RosPose {

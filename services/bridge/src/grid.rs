@@ -17,8 +17,11 @@
 pub struct GridParams {
     /// Metres per cell.
     pub resolution: f64,
+    /// Points lower than this above the floor (metres) are not obstacles.
     pub min_height: f64,
+    /// Points higher than this (metres) are not obstacles.
     pub max_height: f64,
+    /// Points a cell needs to be occupied.
     pub min_points: u32,
     /// A grid wider or longer than this many cells is cut around the
     /// keyframes (a stray far point must not make a huge message).
@@ -29,14 +32,21 @@ pub struct GridParams {
 /// (map frame, metres).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Grid {
+    /// Corner of cell (0, 0) in the map frame (metres).
     pub origin: [f64; 2],
+    /// Columns.
     pub width: usize,
+    /// Rows.
     pub height: usize,
+    /// Cells, row by row: [`UNKNOWN`], [`FREE`] or [`OCCUPIED`].
     pub cells: Vec<i8>,
 }
 
+/// A cell nothing was seen through or in.
 pub const UNKNOWN: i8 = -1;
+/// A cell seen through (between a point and the keyframe that saw it first) or floor.
 pub const FREE: i8 = 0;
+/// A cell holding at least `min_points` points at obstacle height.
 pub const OCCUPIED: i8 = 100;
 
 /// Projects `points` (map frame, each with the index of its keyframe in

@@ -14,6 +14,8 @@
 //!   answered by the SLAM);
 //! - [`camera_in`]: a ROS 2 camera's topics as the run's frames (`source.kind = "ros2"`).
 
+#![deny(missing_docs)]
+
 pub mod camera_in;
 pub mod cdr;
 pub mod frames;

@@ -20,58 +20,69 @@ pub struct MsgType {
     pub hash: &'static str,
 }
 
+/// `nav_msgs/msg/Odometry`.
 pub const ODOMETRY: MsgType = MsgType {
     ros: "nav_msgs/msg/Odometry",
     dds: "nav_msgs::msg::dds_::Odometry_",
     hash: "RIHS01_3cc97dc7fb7502f8714462c526d369e35b603cfc34d946e3f2eda2766dfec6e0",
 };
+/// `tf2_msgs/msg/TFMessage`.
 pub const TF_MESSAGE: MsgType = MsgType {
     ros: "tf2_msgs/msg/TFMessage",
     dds: "tf2_msgs::msg::dds_::TFMessage_",
     hash: "RIHS01_e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d020f087",
 };
+/// `nav_msgs/msg/Path`.
 pub const PATH: MsgType = MsgType {
     ros: "nav_msgs/msg/Path",
     dds: "nav_msgs::msg::dds_::Path_",
     hash: "RIHS01_1957a5bb3cee5da65c4e52e52b65a93df227efce4c20f8458b36e73066ca334b",
 };
+/// `geometry_msgs/msg/PoseArray`.
 pub const POSE_ARRAY: MsgType = MsgType {
     ros: "geometry_msgs/msg/PoseArray",
     dds: "geometry_msgs::msg::dds_::PoseArray_",
     hash: "RIHS01_af0cc36d190e104d546d168d6b39df04fa4b4ccecf59cb4c9ed328d3d5004aa0",
 };
+/// `diagnostic_msgs/msg/DiagnosticArray`.
 pub const DIAGNOSTIC_ARRAY: MsgType = MsgType {
     ros: "diagnostic_msgs/msg/DiagnosticArray",
     dds: "diagnostic_msgs::msg::dds_::DiagnosticArray_",
     hash: "RIHS01_5a8a36efb05fb25070fa0fb3810290c0e6cd4862b54a8fb975a1ee8dc55a333e",
 };
+/// `std_msgs/msg/String`.
 pub const STRING: MsgType = MsgType {
     ros: "std_msgs/msg/String",
     dds: "std_msgs::msg::dds_::String_",
     hash: "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18",
 };
 
+/// `sensor_msgs/msg/Image`.
 pub const IMAGE: MsgType = MsgType {
     ros: "sensor_msgs/msg/Image",
     dds: "sensor_msgs::msg::dds_::Image_",
     hash: "RIHS01_d31d41a9a4c4bc8eae9be757b0beed306564f7526c88ea6a4588fb9582527d47",
 };
+/// `sensor_msgs/msg/CompressedImage`.
 pub const COMPRESSED_IMAGE: MsgType = MsgType {
     ros: "sensor_msgs/msg/CompressedImage",
     dds: "sensor_msgs::msg::dds_::CompressedImage_",
     hash: "RIHS01_15640771531571185e2efc8a100baf923961a4d15d5569652e6cb6691e8e371a",
 };
+/// `sensor_msgs/msg/CameraInfo`.
 pub const CAMERA_INFO: MsgType = MsgType {
     ros: "sensor_msgs/msg/CameraInfo",
     dds: "sensor_msgs::msg::dds_::CameraInfo_",
     hash: "RIHS01_b3dfd68ff46c9d56c80fd3bd4ed22c7a4ddce8c8348f2f59c299e73118e7e275",
 };
 
+/// `sensor_msgs/msg/PointCloud2`.
 pub const POINT_CLOUD2: MsgType = MsgType {
     ros: "sensor_msgs/msg/PointCloud2",
     dds: "sensor_msgs::msg::dds_::PointCloud2_",
     hash: "RIHS01_9198cabf7da3796ae6fe19c4cb3bdd3525492988c70522628af5daa124bae2b5",
 };
+/// `nav_msgs/msg/OccupancyGrid`.
 pub const OCCUPANCY_GRID: MsgType = MsgType {
     ros: "nav_msgs/msg/OccupancyGrid",
     dds: "nav_msgs::msg::dds_::OccupancyGrid_",
@@ -97,7 +108,9 @@ pub const ALL_TYPES: [MsgType; 11] = [
 /// `builtin_interfaces/Time`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Time {
+    /// Seconds.
     pub sec: i32,
+    /// Nanoseconds within the second.
     pub nanosec: u32,
 }
 
@@ -117,6 +130,7 @@ impl Time {
         }
         Self { sec, nanosec }
     }
+    /// Seconds as a float.
     pub fn as_secs(self) -> f64 {
         self.sec as f64 + self.nanosec as f64 * 1e-9
     }
@@ -125,34 +139,48 @@ impl Time {
 /// `std_msgs/Header`.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Header {
+    /// When.
     pub stamp: Time,
+    /// The frame the data is in.
     pub frame_id: String,
 }
 
 /// A rigid transform: translation (metres) and unit quaternion (x y z w).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct RosPose {
+    /// x, y, z (metres).
     pub position: [f64; 3],
+    /// Quaternion x, y, z, w.
     pub orientation: [f64; 4],
 }
 
 /// `nav_msgs/Odometry` (the twist in `child_frame_id`'s axes).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Odometry {
+    /// Stamp and the pose's frame (`odom` or `map`).
     pub header: Header,
+    /// The frame that moves (the robot's base or the camera).
     pub child_frame_id: String,
+    /// The pose.
     pub pose: RosPose,
+    /// Its covariance, row-major 6x6 (x y z and rotations about x y z).
     pub pose_covariance: [f64; 36],
+    /// Linear velocity (m/s, child frame).
     pub linear: [f64; 3],
+    /// Angular velocity (rad/s, child frame).
     pub angular: [f64; 3],
+    /// The twist's covariance, row-major 6x6.
     pub twist_covariance: [f64; 36],
 }
 
 /// `geometry_msgs/TransformStamped`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TransformStamped {
+    /// Stamp and the parent frame.
     pub header: Header,
+    /// The child frame.
     pub child_frame_id: String,
+    /// Child in parent.
     pub transform: RosPose,
 }
 
@@ -161,16 +189,25 @@ pub struct TransformStamped {
 pub struct DiagnosticStatus {
     /// 0 OK, 1 WARN, 2 ERROR, 3 STALE.
     pub level: u8,
+    /// Which part reports.
     pub name: String,
+    /// Its state in words.
     pub message: String,
+    /// The machine or process it is.
     pub hardware_id: String,
+    /// Key-value figures.
     pub values: Vec<(String, String)>,
 }
 
+/// `DiagnosticStatus` levels.
 pub mod level {
+    /// Working.
     pub const OK: u8 = 0;
+    /// Working, degraded.
     pub const WARN: u8 = 1;
+    /// Not working.
     pub const ERROR: u8 = 2;
+    /// No recent report.
     pub const STALE: u8 = 3;
 }
 
@@ -204,6 +241,7 @@ fn read_pose(r: &mut Reader, what: &'static str) -> Result<RosPose, CdrError> {
     Ok(p)
 }
 
+/// The CDR of an `Odometry`.
 pub fn odometry(o: &Odometry) -> Vec<u8> {
     let mut w = Writer::new();
     header(&mut w, &o.header);
@@ -262,15 +300,23 @@ pub fn read_tf_message(message: &[u8]) -> Result<Vec<TransformStamped>, CdrError
 /// `sensor_msgs/Image`, its pixels borrowed from the message.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Image<'a> {
+    /// Stamp and frame.
     pub header: Header,
+    /// Rows.
     pub height: u32,
+    /// Columns.
     pub width: u32,
+    /// Pixel format (`rgb8`, `bgr8`, `16UC1`, ...).
     pub encoding: String,
+    /// Multi-byte values are big-endian.
     pub is_bigendian: bool,
+    /// Bytes per row.
     pub step: u32,
+    /// The pixels, in place.
     pub data: &'a [u8],
 }
 
+/// Reads an `Image`; the pixels stay in `message`.
 pub fn read_image(message: &[u8]) -> Result<Image<'_>, CdrError> {
     let mut r = Reader::new(message)?;
     Ok(Image {
@@ -300,11 +346,15 @@ pub fn mono8_image(h: &Header, width: u32, height: u32, pixels: &[u8]) -> Vec<u8
 /// `sensor_msgs/CompressedImage`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CompressedImage<'a> {
+    /// Stamp and frame.
     pub header: Header,
+    /// `jpeg` or `png` (and what image_transport adds).
     pub format: String,
+    /// The compressed bytes, in place.
     pub data: &'a [u8],
 }
 
+/// Reads a `CompressedImage`; the bytes stay in `message`.
 pub fn read_compressed_image(message: &[u8]) -> Result<CompressedImage<'_>, CdrError> {
     let mut r = Reader::new(message)?;
     Ok(CompressedImage {
@@ -317,15 +367,21 @@ pub fn read_compressed_image(message: &[u8]) -> Result<CompressedImage<'_>, CdrE
 /// `sensor_msgs/CameraInfo`, up to the intrinsic matrix.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CameraInfo {
+    /// Stamp and frame.
     pub header: Header,
+    /// Rows.
     pub height: u32,
+    /// Columns.
     pub width: u32,
+    /// `plumb_bob` or `rational_polynomial`.
     pub distortion_model: String,
+    /// Distortion coefficients.
     pub d: Vec<f64>,
     /// Row-major 3x3 intrinsics: fx 0 cx / 0 fy cy / 0 0 1.
     pub k: [f64; 9],
 }
 
+/// Reads a `CameraInfo`.
 pub fn read_camera_info(message: &[u8]) -> Result<CameraInfo, CdrError> {
     let mut r = Reader::new(message)?;
     let header = read_header(&mut r)?;
@@ -412,7 +468,9 @@ pub const CLOUD_POINT_STEP: usize = 16;
 /// A cloud point: position and colour.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CloudPoint {
+    /// x, y, z (metres, the cloud's frame).
     pub position: [f32; 3],
+    /// RGB colour.
     pub rgb: [u8; 3],
 }
 
@@ -448,15 +506,21 @@ pub fn point_cloud2(h: &Header, points: &[CloudPoint]) -> Vec<u8> {
 /// `nav_msgs/OccupancyGrid`: `cells` row-major from the cell at `origin`,
 /// -1 unknown, 0 free, 100 occupied.
 pub struct Grid<'a> {
+    /// Stamp and frame.
     pub header: Header,
+    /// Metres per cell.
     pub resolution: f32,
+    /// Columns.
     pub width: u32,
+    /// Rows.
     pub height: u32,
     /// The pose of cell (0, 0)'s corner in the header's frame.
     pub origin: RosPose,
+    /// Cells, row by row.
     pub cells: &'a [i8],
 }
 
+/// The CDR of a `nav_msgs/msg/OccupancyGrid`.
 pub fn occupancy_grid(g: &Grid) -> Vec<u8> {
     let mut w = Writer::new();
     header(&mut w, &g.header);
@@ -475,11 +539,13 @@ pub fn occupancy_grid(g: &Grid) -> Vec<u8> {
 // The services (rmw_zenoh: a queryable on the service's key expression,
 // requests and responses in CDR like messages).
 
+/// `std_srvs/srv/Trigger`.
 pub const TRIGGER: MsgType = MsgType {
     ros: "std_srvs/srv/Trigger",
     dds: "std_srvs::srv::dds_::Trigger_",
     hash: "RIHS01_eeff2cd6fa5ad9d27cdf4dec64818317839b62f212a91e6b5304b634b2062c5f",
 };
+/// `std_srvs/srv/SetBool`.
 pub const SET_BOOL: MsgType = MsgType {
     ros: "std_srvs/srv/SetBool",
     dds: "std_srvs::srv::dds_::SetBool_",

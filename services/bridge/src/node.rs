@@ -66,6 +66,7 @@ pub struct RosNode {
 }
 
 impl RosNode {
+    /// Opens the Zenoh session `cfg` describes and declares the node's liveliness token.
     pub fn open(cfg: &BridgeConfig) -> Result<Self> {
         let config = session_config(cfg)?;
         let session = zenoh::open(config)
@@ -91,6 +92,7 @@ impl RosNode {
         })
     }
 
+    /// The session's Zenoh id.
     pub fn zid(&self) -> &str {
         &self.info.zid
     }
@@ -220,6 +222,7 @@ const SERVICE_QUEUE: usize = 16;
 
 /// A ROS 2 service server.
 pub struct RosService {
+    /// The service's name.
     pub name: String,
     key: String,
     queryable: Queryable<RingChannelHandler<Query>>,
@@ -229,6 +232,7 @@ pub struct RosService {
 /// One request: its CDR payload and what the response must carry back.
 pub struct ServiceRequest {
     query: Query,
+    /// The request's CDR.
     pub payload: Vec<u8>,
     /// The client's sequence number and gid (from the request's
     /// attachment; 0 and zeros when it had none).
@@ -237,6 +241,7 @@ pub struct ServiceRequest {
 }
 
 impl RosService {
+    /// The next request waiting, if any.
     pub fn next(&self) -> Option<ServiceRequest> {
         let query = self.queryable.try_recv().ok()??;
         let payload = query
@@ -276,8 +281,10 @@ impl RosService {
 /// A ROS 2 publisher: its samples are numbered 1, 2, ... (continued from
 /// `sequence_number` after a restart).
 pub struct RosPublisher {
+    /// The topic's name.
     pub topic: String,
     gid: [u8; 16],
+    /// Sequence number of the next message.
     pub sequence_number: i64,
     publisher: Sender,
     _token: LivelinessToken,
@@ -289,6 +296,7 @@ enum Sender {
 }
 
 impl RosPublisher {
+    /// Publishes one message's CDR with the attachment rmw_zenoh expects.
     pub fn publish(&mut self, cdr: Vec<u8>) -> Result<()> {
         self.sequence_number += 1;
         let attachment = rmw::attachment(self.sequence_number, wall_clock_ns(), &self.gid);
@@ -302,6 +310,7 @@ impl RosPublisher {
 
 /// Samples of one topic, as they came.
 pub struct TopicSubscriber {
+    /// The topic's name.
     pub topic: String,
     /// Key parts before the type: the domain and the topic's parts.
     depth: usize,

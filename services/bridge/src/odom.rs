@@ -38,6 +38,7 @@ pub enum Refused {
 }
 
 impl Refused {
+    /// The reason as a word, for logs and counts.
     pub fn as_str(self) -> &'static str {
         match self {
             Refused::WrongType => "wrong type",
@@ -53,10 +54,12 @@ pub struct OdomBuffer {
     odom_frame: String,
     base_frame: String,
     by_stamp: BTreeMap<i64, Isometry3<f64>>,
+    /// Samples refused, by reason.
     pub refused: BTreeMap<Refused, u64>,
 }
 
 impl OdomBuffer {
+    /// A buffer for `odom_frame` -> `base_frame` transforms.
     pub fn new(odom_frame: &str, base_frame: &str) -> Self {
         Self {
             odom_frame: odom_frame.to_string(),

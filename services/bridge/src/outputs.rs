@@ -99,6 +99,7 @@ struct Window {
     latencies_ms: Vec<f64>,
 }
 
+/// What the bridge publishes, and when: the SLAM's tracks and map turned into ROS 2 messages.
 pub struct Outputs {
     cfg: BridgeConfig,
     run_dir: PathBuf,
@@ -140,6 +141,7 @@ pub struct Outputs {
 }
 
 impl Outputs {
+    /// The publishers on `node` that `cfg` asks for, with state kept in `run_dir` across restarts.
     pub fn new(node: &mut RosNode, cfg: &BridgeConfig, run_dir: &Path) -> Result<Self> {
         let state: State = std::fs::read_to_string(run_dir.join(STATE_FILE))
             .ok()

@@ -74,11 +74,15 @@ pub fn qos_token(durability: Durability, depth: u32) -> String {
 /// A node of the graph.
 #[derive(Debug, Clone)]
 pub struct NodeInfo {
+    /// ROS 2 domain id.
     pub domain: u32,
     /// The Zenoh session's id, as zenoh prints it (lowercase hex).
     pub zid: String,
+    /// Node id within the session.
     pub node_id: u32,
+    /// The node's namespace.
     pub namespace: String,
+    /// The node's name.
     pub name: String,
 }
 

@@ -39,6 +39,7 @@ struct Pending {
     deadline: Instant,
 }
 
+/// The map services (save, reset, localization mode): requests passed to the SLAM, its replies sent back.
 pub struct MapServices {
     endpoints: Vec<Endpoint>,
     commands: Sender<SlamCommand, ()>,

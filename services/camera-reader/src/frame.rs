@@ -8,15 +8,20 @@ use datasets::source::FrameEntry;
 /// Size and depth scale of the frames of one run.
 #[derive(Debug, Clone, Copy)]
 pub struct FrameGeometry {
+    /// Columns.
     pub width: u32,
+    /// Rows.
     pub height: u32,
+    /// Depth units per metre (TUM: 5000).
     pub depth_scale: f32,
 }
 
 impl FrameGeometry {
+    /// Bytes of a frame's colour (RGB8).
     pub fn rgb_len(&self) -> usize {
         self.width as usize * self.height as usize * 3
     }
+    /// Bytes of a frame's depth (u16 a pixel).
     pub fn depth_len(&self) -> usize {
         self.width as usize * self.height as usize * 2
     }

@@ -6,4 +6,6 @@
 //! - [`frame`]: a dataset frame decoded straight into the loaned
 //!   shared-memory sample.
 
+#![deny(missing_docs)]
+
 pub mod frame;

@@ -26,10 +26,13 @@ use run_folder::run_dir;
 /// One configuration of the ablation.
 #[derive(Debug, Clone)]
 pub struct Variant {
+    /// Short name (the row key, the run folder's name).
     pub key: &'static str,
+    /// What the table says for it.
     pub label: &'static str,
     /// A different dataset (the static original), or the ablated sequence.
     pub dataset: Option<PathBuf>,
+    /// The configuration change this variant makes.
     pub apply: fn(&mut PipelineConfig),
 }
 
@@ -133,17 +136,25 @@ fn yolo11_at(c: &mut PipelineConfig, input_size: u32) {
 /// One row of the table.
 #[derive(Debug, Clone, Serialize)]
 pub struct AblationRow {
+    /// The variant's key.
     pub key: String,
+    /// The variant's label.
     pub label: String,
+    /// Its run folder.
     pub run_dir: PathBuf,
+    /// Frames recorded.
     pub frames: usize,
+    /// Share of the frames tracked (percent).
     pub tracked_pct: f64,
+    /// ATE against the ground truth (metres), where there is one.
     pub ate_rmse_m: Option<f64>,
+    /// Largest position error (metres).
     pub ate_max_m: Option<f64>,
     /// Mean per-person IoU over every frame with a person.
     pub mask_iou: Option<f64>,
     /// Median ms per frame: end to end, and SLAM's tracking alone.
     pub end_to_end_ms_p50: Option<f64>,
+    /// See `end_to_end_ms_p50`.
     pub track_ms_p50: Option<f64>,
 }
 

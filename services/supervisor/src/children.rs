@@ -26,11 +26,17 @@ pub struct RestartPolicy {
 /// What to do after a service died.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum RestartDecision {
+    /// Start it again after this delay.
     RestartAfter(Duration),
-    GiveUp { deaths_in_a_row: u32 },
+    /// It died too often in a row: leave it dead.
+    GiveUp {
+        /// Deaths without a long enough life between them.
+        deaths_in_a_row: u32,
+    },
 }
 
 impl RestartPolicy {
+    /// The policy `cfg` describes (delays, limit, reset).
     pub fn new(cfg: &SupervisorConfig) -> Self {
         Self {
             initial: Duration::from_millis(cfg.restart_backoff_initial_ms),

@@ -24,6 +24,7 @@ pub struct ExternalStream {
 const BAD_FRAMES_LOGGED: u64 = 5;
 
 impl ExternalStream {
+    /// Frames the stream has given so far.
     pub fn frames_seen(&self) -> u64 {
         self.frames_seen
     }

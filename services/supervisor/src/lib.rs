@@ -4,6 +4,8 @@
 //! `dynslam` binary is its command line; the offline tools it offers live in
 //! the `evaluation` crate.
 
+#![deny(missing_docs)]
+
 pub mod ablation;
 pub mod children;
 pub mod default_scene;

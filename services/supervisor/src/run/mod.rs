@@ -35,18 +35,24 @@ pub use run_folder::run_dir::{CORRECTED_TRAJECTORY_FILE, LOOPS_FILE, MAP_FILE};
 /// How a run ended.
 #[derive(Debug, Clone)]
 pub struct RunSummary {
+    /// The run folder.
     pub run_dir: PathBuf,
     /// The report's figures (None when it could not be written).
     pub report: Option<evaluation::report::ReportSummary>,
+    /// Frames recorded.
     pub frames: u64,
+    /// Frames tracked.
     pub tracked: u64,
     /// Real time: frames dropped because a newer one was tracked first.
     pub dropped: u64,
+    /// Service restarts.
     pub restarts: u64,
+    /// Stopped by a signal before the input ended.
     pub interrupted: bool,
     /// Why the run is degraded (a mask worker given up on: frames after it
     /// went unmasked); empty for a run that had everything it was asked for.
     pub degraded: Vec<String>,
+    /// The latency table (per stage, p50 / p99), as printed at the end.
     pub latency_table: String,
 }
 

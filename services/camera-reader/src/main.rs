@@ -18,7 +18,8 @@ use live_camera::v4l2::{Camera, Captured};
 use pipeline::clock::now_ns;
 use pipeline::config::{ClockMode, SourceKind};
 use pipeline::runtime::{run_service, InputError, ServiceArgs, ServiceContext};
-use pipeline::transport::{attach, wait, waitset, Receiver, SampleMut, Sender, Svc, Waiter, Wake};
+use pipeline::service_loop::{self, Drain, Event, Flow, Service};
+use pipeline::transport::{attach, waitset, Receiver, SampleMut, Sender, Svc, Waiter};
 use scheduling::source::{due_ns, LockstepCursor, Publish, SourceCommand};
 use shared_types::names::Topic;
 use shared_types::{frame_flags, Control, FrameHeader, ServiceKind, Track};
@@ -246,46 +247,124 @@ fn run(ctx: ServiceContext, start_seq: u64) -> Result<()> {
     let _tracks_attached = attach(&ws, &tracks)?;
     let _control_attached = attach(&ws, &control)?;
     ctx.announce_ready()?;
+    let inputs = Inputs {
+        tracks: &tracks,
+        control: &control,
+    };
 
     match ctx.config.run.mode {
-        ClockMode::Lockstep => lockstep(&player, &ws, &tracks, &control, start_seq),
-        ClockMode::Realtime => realtime(
-            &player,
-            &ws,
-            &tracks,
-            &control,
-            start_seq,
-            ctx.config.run.speed,
-        ),
+        ClockMode::Lockstep => Lockstep::run(&player, &ws, inputs, start_seq),
+        ClockMode::Realtime => Realtime::run(&player, &ws, inputs, start_seq, ctx.config.run.speed),
     }
 }
 
-fn lockstep(
-    player: &Player,
-    ws: &Waiter,
-    tracks: &Receiver<Track, ()>,
-    control: &Receiver<Control, ()>,
-    start_seq: u64,
-) -> Result<()> {
-    let mut cursor = LockstepCursor::new(start_seq, player.frames.len() as u64);
-    player.publish(cursor.current(), false)?;
-    loop {
-        if wait(ws, Duration::from_secs(1))? == Wake::Terminate {
-            return Ok(());
-        }
-        for c in control.drain()? {
-            let Some(SourceCommand::Replay(seq)) = SourceCommand::from_control(&c) else {
-                continue; // real-time commands do not apply
-            };
-            if let Some(Publish::Replay(seq)) = cursor.on_replay(seq) {
-                tracing::info!(seq, "replaying frame after a restart");
-                player.publish(seq, true)?;
+/// Lockstep: frame n is published, then n + 1 once SLAM's Track(n) came;
+/// the supervisor's replay requests (recovery after a restart) are answered
+/// at once.
+struct Lockstep<'a> {
+    player: &'a Player,
+    tracks: &'a Receiver<Track, ()>,
+    control: &'a Receiver<Control, ()>,
+    cursor: LockstepCursor,
+    /// Frames tracked since the last tick.
+    tracked: Vec<u64>,
+    drain: Drain,
+}
+
+/// The reader's receivers: SLAM's Tracks (lockstep's pace, real time's
+/// backlog) and the supervisor's commands.
+#[derive(Clone, Copy)]
+struct Inputs<'a> {
+    tracks: &'a Receiver<Track, ()>,
+    control: &'a Receiver<Control, ()>,
+}
+
+/// What arrives for the reader, in the order a wake-up drains it.
+enum Arrival {
+    Control(Control),
+    Track(Track),
+}
+
+impl Lockstep<'_> {
+    fn run(player: &Player, ws: &Waiter, inputs: Inputs, start_seq: u64) -> Result<()> {
+        let cursor = LockstepCursor::new(start_seq, player.frames.len() as u64);
+        player.publish(cursor.current(), false)?;
+        service_loop::run(
+            ws,
+            &mut Lockstep {
+                player,
+                tracks: inputs.tracks,
+                control: inputs.control,
+                cursor,
+                tracked: Vec::new(),
+                drain: Drain::default(),
+            },
+        )
+    }
+}
+
+impl Service for Lockstep<'_> {
+    type Event = Arrival;
+
+    fn woke(&mut self) {
+        self.drain.restart();
+    }
+
+    fn next_event(&mut self) -> Result<Option<Arrival>> {
+        next_arrival(&mut self.drain, self.control, Some(self.tracks))
+    }
+
+    fn handle(&mut self, event: Event<Arrival>) -> Result<Flow> {
+        match event {
+            Event::Arrived(Arrival::Control(c)) => {
+                // Real-time commands do not apply.
+                if let Some(SourceCommand::Replay(seq)) = SourceCommand::from_control(&c) {
+                    if let Some(Publish::Replay(seq)) = self.cursor.on_replay(seq) {
+                        tracing::info!(seq, "replaying frame after a restart");
+                        self.player.publish(seq, true)?;
+                    }
+                }
             }
+            Event::Arrived(Arrival::Track(t)) => self.tracked.push(t.seq),
+            Event::Tick => {
+                let tracked = std::mem::take(&mut self.tracked);
+                if let Some(Publish::Next(seq)) = self.cursor.on_tracks(tracked) {
+                    self.player.publish(seq, false)?;
+                }
+            }
+            Event::Shutdown => {}
         }
-        let tracked: Vec<u64> = tracks.drain()?.iter().map(|t| t.seq).collect();
-        if let Some(Publish::Next(seq)) = cursor.on_tracks(tracked) {
-            player.publish(seq, false)?;
+        Ok(Flow::Continue)
+    }
+}
+
+/// The next command, then (where given) the next Track, of this wake-up.
+fn next_arrival(
+    drain: &mut Drain,
+    control: &Receiver<Control, ()>,
+    tracks: Option<&Receiver<Track, ()>>,
+) -> Result<Option<Arrival>> {
+    loop {
+        let entering = drain.entering();
+        let next = match (drain.stage(), tracks) {
+            (0, _) => {
+                if entering {
+                    control.clear_wakeups();
+                }
+                control.next()?.map(Arrival::Control)
+            }
+            (1, Some(tracks)) => {
+                if entering {
+                    tracks.clear_wakeups();
+                }
+                tracks.next()?.map(Arrival::Track)
+            }
+            _ => return Ok(None),
+        };
+        if next.is_some() {
+            return Ok(next);
         }
+        drain.advance();
     }
 }
 
@@ -302,16 +381,13 @@ impl Backlog {
         Ok(())
     }
 
-    /// The supervisor's commands: a restarted SLAM clears the backlog
+    /// A supervisor's command: a restarted SLAM clears the backlog
     /// (replays do not apply at camera rate).
-    fn note_control(&mut self, control: &Receiver<Control, ()>) -> Result<()> {
-        for c in control.drain()? {
-            if SourceCommand::from_control(&c) == Some(SourceCommand::ForgetBacklog) {
-                tracing::debug!("the SLAM restarted: not waiting for its predecessor's Tracks");
-                self.0.forget();
-            }
+    fn note_control(&mut self, c: &Control) {
+        if SourceCommand::from_control(c) == Some(SourceCommand::ForgetBacklog) {
+            tracing::debug!("the SLAM restarted: not waiting for its predecessor's Tracks");
+            self.0.forget();
         }
-        Ok(())
     }
 
     /// Whether the next frame is to be left out now.
@@ -320,7 +396,7 @@ impl Backlog {
     }
 
     /// Frame `seq` decoded now, unless the pipeline is behind (a frame
-    /// left out is never decoded).
+    /// left out is never decoded). The Tracks that came are read first.
     fn decode_if_room(
         &mut self,
         player: &Player,
@@ -340,61 +416,130 @@ impl Backlog {
     }
 }
 
-fn realtime(
-    player: &Player,
-    ws: &Waiter,
-    tracks: &Receiver<Track, ()>,
-    control: &Receiver<Control, ()>,
-    start_seq: u64,
+/// Real time: each frame published at its instant (the source's
+/// timestamps times `speed`), decoded ahead of it as soon as the pipeline
+/// has room (a Track wakes the loop), left out when the pipeline is behind.
+/// Tracks are read where room is decided; the supervisor's commands arrive
+/// as events.
+struct Realtime<'a> {
+    player: &'a Player,
+    tracks: &'a Receiver<Track, ()>,
+    control: &'a Receiver<Control, ()>,
+    backlog: Backlog,
+    /// When playback started, and the first frame's timestamp.
+    t0: u64,
+    first_ts: f64,
     speed: f64,
-) -> Result<()> {
-    let total = player.frames.len() as u64;
-    let t0 = now_ns();
-    let first_ts = player
-        .frames
-        .get(start_seq as usize)
-        .map(|f| f.timestamp)
-        .unwrap_or(0.0);
-    let mut backlog = Backlog::default();
-    for seq in start_seq..total {
-        // Decoded ahead of its instant as soon as the pipeline has room for
-        // it (a Track wakes the wait).
-        let due = due_ns(t0, first_ts, player.frames[seq as usize].timestamp, speed);
-        let mut ahead = None;
-        loop {
-            let now = now_ns();
-            if now >= due {
+    /// The next frame to publish, and that frame decoded ahead.
+    seq: u64,
+    ahead: Option<Decoded>,
+    /// Every frame is out, and the end of the stream.
+    ended: bool,
+    drain: Drain,
+}
+
+impl Realtime<'_> {
+    fn run(player: &Player, ws: &Waiter, inputs: Inputs, start_seq: u64, speed: f64) -> Result<()> {
+        let first_ts = player
+            .frames
+            .get(start_seq as usize)
+            .map(|f| f.timestamp)
+            .unwrap_or(0.0);
+        service_loop::run(
+            ws,
+            &mut Realtime {
+                player,
+                tracks: inputs.tracks,
+                control: inputs.control,
+                backlog: Backlog::default(),
+                t0: now_ns(),
+                first_ts,
+                speed,
+                seq: start_seq,
+                ahead: None,
+                ended: false,
+                drain: Drain::default(),
+            },
+        )
+    }
+
+    /// The instant frame `seq` is due.
+    fn due(&self) -> u64 {
+        let ts = self.player.frames[self.seq as usize].timestamp;
+        due_ns(self.t0, self.first_ts, ts, self.speed)
+    }
+
+    /// Publishes every frame that is due, decodes the next one ahead if
+    /// there is room; after the last, the end of the stream.
+    fn play(&mut self) -> Result<()> {
+        let total = self.player.frames.len() as u64;
+        while !self.ended {
+            if self.seq >= total {
+                self.player.publish_end()?;
+                self.ended = true;
                 break;
             }
-            if ahead.is_none() {
-                ahead = backlog.decode_if_room(player, tracks, seq)?;
-                if ahead.is_some() {
-                    continue; // the decoding took time
+            if now_ns() < self.due() {
+                if self.ahead.is_none() {
+                    self.ahead = self
+                        .backlog
+                        .decode_if_room(self.player, self.tracks, self.seq)?;
+                    if self.ahead.is_some() {
+                        continue; // the decoding took time
+                    }
                 }
+                return Ok(()); // the loop sleeps until it is due
             }
-            if wait(ws, Duration::from_nanos(due - now))? == Wake::Terminate {
-                return Ok(());
+            let captured = now_ns();
+            if self.ahead.is_none() {
+                // Not decoded ahead: decoded now, its latency counted.
+                self.ahead = self
+                    .backlog
+                    .decode_if_room(self.player, self.tracks, self.seq)?;
             }
-            backlog.note_control(control)?;
+            match self.ahead.take() {
+                Some(decoded) => {
+                    self.player.send(decoded, captured, false)?;
+                    self.backlog.published(self.seq);
+                }
+                None => self.player.publish_dropped(self.seq)?,
+            }
+            self.seq += 1;
         }
-        let captured = now_ns();
-        if ahead.is_none() {
-            // Not decoded ahead: decoded now, its latency counted.
-            ahead = backlog.decode_if_room(player, tracks, seq)?;
-        }
-        match ahead {
-            Some(decoded) => {
-                player.send(decoded, captured, false)?;
-                backlog.published(seq);
-            }
-            None => player.publish_dropped(seq)?,
+        // After the end the Tracks still come: read, so they do not keep
+        // waking the loop.
+        self.tracks.drain()?;
+        Ok(())
+    }
+}
+
+impl Service for Realtime<'_> {
+    type Event = Arrival;
+
+    fn patience(&self) -> Duration {
+        if self.ended {
+            Duration::from_secs(1)
+        } else {
+            Duration::from_nanos(self.due().saturating_sub(now_ns()))
         }
     }
-    player.publish_end()?;
-    while wait(ws, Duration::from_secs(1))? != Wake::Terminate {
-        control.drain()?;
+
+    fn woke(&mut self) {
+        self.drain.restart();
     }
-    Ok(())
+
+    fn next_event(&mut self) -> Result<Option<Arrival>> {
+        next_arrival(&mut self.drain, self.control, None)
+    }
+
+    fn handle(&mut self, event: Event<Arrival>) -> Result<Flow> {
+        match event {
+            Event::Arrived(Arrival::Control(c)) => self.backlog.note_control(&c),
+            Event::Arrived(Arrival::Track(_)) | Event::Shutdown => {}
+            Event::Tick => self.play()?,
+        }
+        Ok(Flow::Continue)
+    }
 }
 
 /// How long one wait for the camera lasts before the loop looks at its
@@ -415,7 +560,7 @@ fn wall_seconds(monotonic_ns: u64) -> f64 {
 /// (or `source.limit` frames); then the end of the stream.
 fn live(ctx: ServiceContext) -> Result<()> {
     let src = &ctx.config.source;
-    let mut camera = Camera::open(src).map_err(|e| InputError(e.to_string()))?;
+    let camera = Camera::open(src).map_err(|e| InputError(e.to_string()))?;
     let (width, height) = camera.size();
     let run = &ctx.config.run;
     if width > run.max_width || height > run.max_height {
@@ -446,51 +591,85 @@ fn live(ctx: ServiceContext) -> Result<()> {
             ", colour only"
         }
     );
-    let header = |seq: u64, arrived: u64, depth: bool| FrameHeader {
-        seq,
-        source_timestamp: wall_seconds(arrived),
-        width,
-        height,
-        pixel_format: shared_types::PixelFormat::Rgb8 as u32,
-        has_depth: depth as u32,
-        depth_scale: geometry.depth_scale,
-        ..Default::default()
-    };
-    let mut backlog = Backlog::default();
-    let mut seq = 0u64;
-    let mut stopped = false;
-    while src.limit == 0 || seq < src.limit {
-        if wait(&ws, Duration::ZERO)? == Wake::Terminate {
-            stopped = true;
-            break;
+    service_loop::run(
+        &ws,
+        &mut Live {
+            camera,
+            geometry,
+            sender: &sender,
+            inputs: Inputs {
+                tracks: &tracks,
+                control: &control,
+            },
+            backlog: Backlog::default(),
+            seq: 0,
+            limit: src.limit,
+            ended: false,
+            drain: Drain::default(),
+        },
+    )
+}
+
+/// A live camera's stream: one frame a tick, the camera's own wait its
+/// pace (the loop does not sleep while it streams).
+struct Live<'a> {
+    camera: Camera,
+    geometry: FrameGeometry,
+    sender: &'a Sender<[u8], FrameHeader>,
+    inputs: Inputs<'a>,
+    backlog: Backlog,
+    /// The next frame's number, and how many to stream (0: no limit).
+    seq: u64,
+    limit: u64,
+    /// The end of the stream is out.
+    ended: bool,
+    drain: Drain,
+}
+
+impl Live<'_> {
+    /// A frame's header, arrived at `arrived` (CLOCK_MONOTONIC).
+    fn header(&self, arrived: u64, depth: bool) -> FrameHeader {
+        FrameHeader {
+            seq: self.seq,
+            source_timestamp: wall_seconds(arrived),
+            width: self.geometry.width,
+            height: self.geometry.height,
+            pixel_format: shared_types::PixelFormat::Rgb8 as u32,
+            has_depth: depth as u32,
+            depth_scale: self.geometry.depth_scale,
+            ..Default::default()
         }
-        backlog.note_control(&control)?;
-        backlog.note_tracks(&tracks)?;
-        if backlog.full() {
-            let Some(arrived) = camera.skip(CAMERA_POLL, now_ns)? else {
-                continue;
+    }
+
+    /// The next frame the camera sends, published (or left out, its header
+    /// only, when the pipeline is behind).
+    fn next_frame(&mut self) -> Result<()> {
+        if self.backlog.full() {
+            let Some(arrived) = self.camera.skip(CAMERA_POLL, now_ns)? else {
+                return Ok(());
             };
-            let mut h = header(seq, arrived, false);
+            let mut h = self.header(arrived, false);
             h.flags |= frame_flags::DROPPED_AT_SOURCE;
             h.stamps.capture_ns = arrived;
-            publish_header(&sender, h)?;
-            seq += 1;
-            continue;
+            publish_header(self.sender, h)?;
+            self.seq += 1;
+            return Ok(());
         }
         let mut slot = None;
-        let len = geometry.payload_len(camera.has_depth());
-        let captured = camera.next(CAMERA_POLL, now_ns, || {
+        let len = self.geometry.payload_len(self.camera.has_depth());
+        let sender = self.sender;
+        let captured = self.camera.next(CAMERA_POLL, now_ns, || {
             let sample = slot.insert(sender.loan(len)?);
             Ok(sample.payload_mut())
         })?;
         let (Some((arrived, captured)), Some(mut sample)) = (captured, slot) else {
-            continue;
+            return Ok(());
         };
         let mut h = match captured {
-            Captured::Frame { depth } => header(seq, arrived, depth),
+            Captured::Frame { depth } => self.header(arrived, depth),
             Captured::Bad(why) => {
-                tracing::error!(seq, "bad camera frame: {why}");
-                let mut h = header(seq, arrived, false);
+                tracing::error!(seq = self.seq, "bad camera frame: {why}");
+                let mut h = self.header(arrived, false);
                 mark_bad(&mut h, &why);
                 h
             }
@@ -498,14 +677,53 @@ fn live(ctx: ServiceContext) -> Result<()> {
         h.stamps.capture_ns = arrived;
         h.stamps.published_ns = now_ns();
         *sample.user_header_mut() = h;
-        sender.publish(sample)?;
-        backlog.published(seq);
-        seq += 1;
+        self.sender.publish(sample)?;
+        self.backlog.published(self.seq);
+        self.seq += 1;
+        Ok(())
     }
-    publish_end(&sender, seq)?;
-    tracing::info!(frames = seq, "camera stream ended");
-    while !stopped && wait(&ws, Duration::from_secs(1))? != Wake::Terminate {
-        control.drain()?;
+
+    fn end(&mut self) -> Result<()> {
+        publish_end(self.sender, self.seq)?;
+        tracing::info!(frames = self.seq, "camera stream ended");
+        self.ended = true;
+        Ok(())
     }
-    Ok(())
+}
+
+impl Service for Live<'_> {
+    type Event = Arrival;
+
+    fn patience(&self) -> Duration {
+        if self.ended {
+            Duration::from_secs(1)
+        } else {
+            Duration::ZERO
+        }
+    }
+
+    fn woke(&mut self) {
+        self.drain.restart();
+    }
+
+    fn next_event(&mut self) -> Result<Option<Arrival>> {
+        next_arrival(
+            &mut self.drain,
+            self.inputs.control,
+            Some(self.inputs.tracks),
+        )
+    }
+
+    fn handle(&mut self, event: Event<Arrival>) -> Result<Flow> {
+        match event {
+            Event::Arrived(Arrival::Control(c)) => self.backlog.note_control(&c),
+            Event::Arrived(Arrival::Track(t)) => self.backlog.0.on_track(t.seq),
+            Event::Tick if self.ended => {}
+            Event::Tick if self.limit != 0 && self.seq >= self.limit => self.end()?,
+            Event::Tick => self.next_frame()?,
+            Event::Shutdown if !self.ended => self.end()?,
+            Event::Shutdown => {}
+        }
+        Ok(Flow::Continue)
+    }
 }

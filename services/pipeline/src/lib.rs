@@ -10,8 +10,10 @@
 //! - [`clock`]: CLOCK_MONOTONIC stamps comparable across processes.
 //! - [`runtime`]: what every service binary does at start (logging, exit
 //!   codes the supervisor understands, readiness handshake).
-//! - [`mask_worker`]: the segmenter's and the propagator's service loop
-//!   around a model (the `mask-model` crate's seam).
+//! - [`service_loop`]: the one event loop every service runs (its events
+//!   one at a time, a tick, shutdown).
+//! - [`mask_worker`]: the segmenter's and the propagator's service over a
+//!   model (the `mask-model` crate's seam).
 
 #![deny(missing_docs)]
 
@@ -19,6 +21,7 @@ pub mod cameras;
 pub mod clock;
 pub mod mask_worker;
 pub mod runtime;
+pub mod service_loop;
 pub mod transport;
 
 /// Finding and checking model files and the ONNX Runtime library (its own

@@ -1,4 +1,6 @@
-//! The service loop shared by the segmenter and the propagator.
+//! The service shared by the segmenter and the propagator, on the one
+//! service loop ([`crate::service_loop`]): routes, frames and masks arrive
+//! as events, each tick works through the queue.
 //!
 //! A mask worker holds the last few frames in place (borrowed samples, no
 //! copies), takes the routes addressed to it, runs its [`MaskModel`] on the
@@ -6,7 +8,6 @@
 //! propagator also listens to the segmenter's masks: they are its prompts.
 
 use std::collections::VecDeque;
-use std::time::Duration;
 
 use anyhow::Result;
 use iceoryx2::sample::Sample;
@@ -18,7 +19,8 @@ use shared_types::{
 
 use crate::clock::now_ns;
 use crate::runtime::ServiceContext;
-use crate::transport::{attach, wait, waitset, Svc, Wake};
+use crate::service_loop::{self, Drain, Event, Flow, Service};
+use crate::transport::{attach, waitset, Receiver, Sender, Svc};
 use crate::views::{FrameView, MasksView};
 
 pub use mask_model::{model_from_config, MaskModel, ModelFactory, NoObjects, Unavailable};
@@ -70,7 +72,7 @@ pub fn run(ctx: ServiceContext, role: MaskSource, model: Box<dyn MaskModel>) -> 
     let _c = attach(&ws, &masks_in)?;
     ctx.announce_ready()?;
     tracing::info!("{} ready with model '{}'", role.as_str(), model.name());
-    let mut worker = Worker {
+    let worker = Worker {
         role,
         model,
         queue: WorkQueue::new(ctx.config.run.mode),
@@ -80,16 +82,84 @@ pub fn run(ctx: ServiceContext, role: MaskSource, model: Box<dyn MaskModel>) -> 
         not_held: 0,
         published: 0,
     };
-    while wait(&ws, Duration::from_secs(1))? != Wake::Terminate {
-        for r in routes.drain()? {
-            worker.on_route(r);
-        }
-        worker.take_frames(&frames)?;
-        worker.take_masks(&masks_in)?;
-        worker.work(&masks_out)?;
+    service_loop::run(
+        &ws,
+        &mut WorkerLoop {
+            worker,
+            routes: &routes,
+            frames: &frames,
+            masks_in: &masks_in,
+            masks_out: &masks_out,
+            drain: Drain::default(),
+        },
+    )
+}
+
+/// What arrives for a mask worker, in the order a wake-up drains it.
+enum Arrival {
+    Route(Route),
+    Frame(FrameSample),
+    Masks(MasksSample),
+}
+
+/// A mask worker with its ports, as the service loop drives it.
+struct WorkerLoop<'a> {
+    worker: Worker,
+    routes: &'a Receiver<Route, ()>,
+    frames: &'a Receiver<[u8], FrameHeader>,
+    masks_in: &'a Receiver<[u8], MasksHeader>,
+    masks_out: &'a Sender<[u8], MasksHeader>,
+    drain: Drain,
+}
+
+impl Service for WorkerLoop<'_> {
+    type Event = Arrival;
+
+    fn woke(&mut self) {
+        self.drain.restart();
     }
-    worker.say_summary();
-    Ok(())
+
+    fn next_event(&mut self) -> Result<Option<Arrival>> {
+        loop {
+            let entering = self.drain.entering();
+            let next = match self.drain.stage() {
+                0 => {
+                    if entering {
+                        self.routes.clear_wakeups();
+                    }
+                    self.routes.next()?.map(Arrival::Route)
+                }
+                1 => {
+                    if entering {
+                        self.frames.clear_wakeups();
+                    }
+                    self.frames.next_sample()?.map(Arrival::Frame)
+                }
+                2 => {
+                    if entering {
+                        self.masks_in.clear_wakeups();
+                    }
+                    self.masks_in.next_sample()?.map(Arrival::Masks)
+                }
+                _ => return Ok(None),
+            };
+            if next.is_some() {
+                return Ok(next);
+            }
+            self.drain.advance();
+        }
+    }
+
+    fn handle(&mut self, event: Event<Arrival>) -> Result<Flow> {
+        match event {
+            Event::Arrived(Arrival::Route(r)) => self.worker.on_route(r),
+            Event::Arrived(Arrival::Frame(sample)) => self.worker.take_frame(sample),
+            Event::Arrived(Arrival::Masks(sample)) => self.worker.take_masks(sample)?,
+            Event::Tick => self.worker.work(self.masks_out)?,
+            Event::Shutdown => self.worker.say_summary(),
+        }
+        Ok(Flow::Continue)
+    }
 }
 
 impl Worker {
@@ -123,59 +193,46 @@ impl Worker {
         }
     }
 
-    /// The frames published since the last wake-up, held (the newest
+    /// A frame published since the last wake-up, held (the newest
     /// [`HELD_FRAMES`]).
-    fn take_frames(
-        &mut self,
-        frames: &crate::transport::Receiver<[u8], FrameHeader>,
-    ) -> Result<()> {
-        frames.clear_wakeups();
-        while let Some(sample) = frames.next_sample()? {
-            let h = sample.user_header();
-            if !h.carries_pixels() {
-                continue;
-            }
-            self.held.retain(|s| s.user_header().seq != h.seq);
-            if let Some(i) = self.keep_on_arrival.iter().position(|&s| s == h.seq) {
-                self.keep_on_arrival.remove(i);
-                if let Ok(frame) = FrameView::new(h, sample.payload()) {
-                    self.model.keep(&frame);
-                }
-            }
-            self.held.push_back(sample);
-            while self.held.len() > HELD_FRAMES {
-                self.held.pop_front();
+    fn take_frame(&mut self, sample: FrameSample) {
+        let h = sample.user_header();
+        if !h.carries_pixels() {
+            return;
+        }
+        self.held.retain(|s| s.user_header().seq != h.seq);
+        if let Some(i) = self.keep_on_arrival.iter().position(|&s| s == h.seq) {
+            self.keep_on_arrival.remove(i);
+            if let Ok(frame) = FrameView::new(h, sample.payload()) {
+                self.model.keep(&frame);
             }
         }
-        Ok(())
+        self.held.push_back(sample);
+        while self.held.len() > HELD_FRAMES {
+            self.held.pop_front();
+        }
     }
 
-    /// The masks published since the last wake-up: the propagator's
-    /// prompts; the segmenter keeps the newest ones.
-    fn take_masks(
-        &mut self,
-        masks_in: &crate::transport::Receiver<[u8], MasksHeader>,
-    ) -> Result<()> {
-        masks_in.clear_wakeups();
-        while let Some(sample) = masks_in.next_sample()? {
-            let h = sample.user_header();
-            if h.has(mask_flags::GONE) || h.has(mask_flags::FAILED) {
-                continue; // no masks came for that frame
-            }
-            match self.role {
-                MaskSource::Propagator => {
-                    let masks = MasksView::new(h, sample.payload())?;
-                    if masks.source() == MaskSource::Segmenter {
-                        let frame = held_frame(&self.held, masks.header.seq);
-                        self.model.prompt(frame.as_ref(), &masks);
-                    }
+    /// Masks published since the last wake-up: the propagator's prompts;
+    /// the segmenter keeps the newest ones.
+    fn take_masks(&mut self, sample: MasksSample) -> Result<()> {
+        let h = sample.user_header();
+        if h.has(mask_flags::GONE) || h.has(mask_flags::FAILED) {
+            return Ok(()); // no masks came for that frame
+        }
+        match self.role {
+            MaskSource::Propagator => {
+                let masks = MasksView::new(h, sample.payload())?;
+                if masks.source() == MaskSource::Segmenter {
+                    let frame = held_frame(&self.held, masks.header.seq);
+                    self.model.prompt(frame.as_ref(), &masks);
                 }
-                _ => {
-                    self.recent.retain(|s| s.user_header().seq != h.seq);
-                    self.recent.push_back(sample);
-                    while self.recent.len() > RECENT_MASKS {
-                        self.recent.pop_front();
-                    }
+            }
+            _ => {
+                self.recent.retain(|s| s.user_header().seq != h.seq);
+                self.recent.push_back(sample);
+                while self.recent.len() > RECENT_MASKS {
+                    self.recent.pop_front();
                 }
             }
         }
@@ -184,7 +241,7 @@ impl Worker {
 
     /// Works through the queue as far as the held frames allow; routes the
     /// queue passes over are told gone in real time.
-    fn work(&mut self, out: &crate::transport::Sender<[u8], MasksHeader>) -> Result<()> {
+    fn work(&mut self, out: &Sender<[u8], MasksHeader>) -> Result<()> {
         for route in self.queue.keep_newest() {
             publish_gone(out, self.role, &route, 0)?;
         }
@@ -260,7 +317,7 @@ fn held_frame(held: &VecDeque<FrameSample>, seq: u64) -> Option<FrameView<'_>> {
 /// Real time: no masks will come for `route`'s frame (replaced before this
 /// worker's turn, or `extra_flags` says why).
 fn publish_gone(
-    out: &crate::transport::Sender<[u8], MasksHeader>,
+    out: &Sender<[u8], MasksHeader>,
     role: MaskSource,
     route: &Route,
     extra_flags: u32,
@@ -288,7 +345,7 @@ struct MaskJob<'a> {
 /// Makes and publishes the masks of `job`; false when no worker could take
 /// the frame ([`Unavailable`]).
 fn publish_masks(
-    out: &crate::transport::Sender<[u8], MasksHeader>,
+    out: &Sender<[u8], MasksHeader>,
     model: &mut dyn MaskModel,
     job: MaskJob,
 ) -> Result<bool> {

@@ -20,7 +20,7 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
-use iceoryx2::sample::Sample;
+pub use iceoryx2::sample::Sample;
 pub use iceoryx2::sample_mut::SampleMut;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
 use shared_types::names::{RunNames, Topic};

@@ -16,13 +16,14 @@ use iceoryx2::sample::Sample;
 use pipeline::clock::now_ns;
 use pipeline::config::ClockMode;
 use pipeline::runtime::{run_service, InputError, ServiceArgs, ServiceContext};
-use pipeline::transport::{attach, qos, wait, waitset, Svc, Wake};
+use pipeline::service_loop::{self, Drain, Event, Flow, Service};
+use pipeline::transport::{attach, qos, waitset, Receiver, Sender, Svc};
 use pipeline::views::{FrameView, MasksView};
 use scheduling::{tracking, KeyframeFacts};
 use shared_types::names::Topic;
 use shared_types::{
     control_kind, frame_flags, mask_flags, Control, FrameHeader, MaskSource, MasksHeader, Pose,
-    Route, RouteKind, ServiceKind, StageStamps, Track, TrackState,
+    Route, RouteKind, ServiceKind, SlamCommand, StageStamps, Track, TrackState,
 };
 use slam_backend::bridge_link::BridgeLink;
 use slam_backend::rgbd_tracker::{MapFiles, RgbdTracker};
@@ -167,7 +168,6 @@ impl State {
 const YOUNG_MAP_KEYFRAMES: u32 = slam_core::system::YOUNG_MAP_KEYFRAMES as u32;
 
 fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
-    let loops_out = outputs.loops.as_deref();
     let standby = ctx.kind == ServiceKind::SlamStandby;
     // The ports first: a restarted SLAM holds the frames that come while
     // it reads its map, and tracks the newest of them at once.
@@ -184,8 +184,14 @@ fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
     let _b = attach(&ws, &masks)?;
     let _c = attach(&ws, &routes)?;
     let control_attached = control.as_ref().map(|c| attach(&ws, c)).transpose()?;
-    let max_frames = qos(Topic::Frames).borrowed - 1;
-    let max_masks = qos(Topic::Masks).borrowed - 1;
+    let ports = Ports {
+        frames: &frames,
+        masks: &masks,
+        routes: &routes,
+        tracks: &tracks,
+        max_frames: qos(Topic::Frames).borrowed - 1,
+        max_masks: qos(Topic::Masks).borrowed - 1,
+    };
     let mut st = State::default();
     // A standby reads the map when promoted (the newest checkpoint then).
     let mut tracker = (!standby)
@@ -194,21 +200,17 @@ fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
     if standby {
         ctx.announce_ready()?;
         tracing::info!("slam standing by");
-        let ports = Ports {
-            frames: &frames,
-            masks: &masks,
-            routes: &routes,
-            tracks: &tracks,
+        let mut standby = Standby {
+            st: &mut st,
+            ports: &ports,
+            control: control
+                .as_ref()
+                .expect("a standby listens to the supervisor"),
+            promoted_from: None,
+            drain: Drain::default(),
         };
-        let Some(from) = stand_by(
-            &ws,
-            &ports,
-            control.as_ref(),
-            &mut st,
-            max_frames,
-            max_masks,
-        )?
-        else {
+        service_loop::run(&ws, &mut standby)?;
+        let Some(from) = standby.promoted_from else {
             return Ok(()); // stopped while standing by: nothing to write
         };
         // The supervisor's later commands are the reader's: left unread
@@ -229,25 +231,239 @@ fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
             "promoted: the standby is the SLAM now"
         );
     }
-    let mut tracker = tracker.expect("built above or at promotion");
-    let (mut bridge, commands) = BridgeLink::open(&ctx)?.unzip();
+    let tracker = tracker.expect("built above or at promotion");
+    let (bridge, commands) = BridgeLink::open(&ctx)?.unzip();
     let _d = commands.as_ref().map(|c| attach(&ws, c)).transpose()?;
     if !standby {
         ctx.announce_ready()?;
     }
     tracing::info!("slam ready with tracker '{}'", tracker.name());
+    service_loop::run(
+        &ws,
+        &mut Slam {
+            st,
+            tracker,
+            bridge,
+            commands: commands.as_ref(),
+            ports: &ports,
+            poses: &poses,
+            outputs,
+            mode: ctx.config.run.mode,
+            drain: Drain::default(),
+        },
+    )
+}
 
-    let mode = ctx.config.run.mode;
-    loop {
-        // Tracks the frames it holds first (a promoted standby holds some).
-        while let Some(track) = track_next_ready(&mut st, &mut *tracker, mode)? {
-            tracks.send(track)?;
-            poses.send(Pose::of(&track))?;
-            record_loops(&mut *tracker, loops_out)?;
+/// What arrives for the SLAM, in the order a wake-up drains it.
+enum Arrival {
+    Frame(FrameSample),
+    Masks(MasksSample),
+    Route(Route),
+    Control(Control),
+}
+
+/// The receivers the SLAM (and its standby) drain, the Tracks sender a
+/// replayed frame is answered on, and how many frames and masks may be held
+/// (within the topics' borrow limits).
+struct Ports<'a> {
+    frames: &'a Receiver<[u8], FrameHeader>,
+    masks: &'a Receiver<[u8], MasksHeader>,
+    routes: &'a Receiver<Route, ()>,
+    tracks: &'a Sender<Track, ()>,
+    max_frames: usize,
+    max_masks: usize,
+}
+
+impl Ports<'_> {
+    /// The next arrival of this wake-up: frames, then masks, then routes,
+    /// then (a standby's) commands. Room for a frame or masks is made
+    /// before it is taken: the oldest held goes.
+    fn next(
+        &self,
+        drain: &mut Drain,
+        st: &mut State,
+        control: Option<&Receiver<Control, ()>>,
+    ) -> Result<Option<Arrival>> {
+        loop {
+            let entering = drain.entering();
+            let next = match drain.stage() {
+                0 => {
+                    if entering {
+                        self.frames.clear_wakeups();
+                    }
+                    if !self.frames.has_samples()? {
+                        None
+                    } else {
+                        if st.frames.len() >= self.max_frames {
+                            st.frames.pop_front();
+                        }
+                        self.frames.next_sample()?.map(Arrival::Frame)
+                    }
+                }
+                1 => {
+                    if entering {
+                        self.masks.clear_wakeups();
+                    }
+                    if !self.masks.has_samples()? {
+                        None
+                    } else {
+                        if st.masks.len() >= self.max_masks {
+                            st.masks.pop_front();
+                        }
+                        self.masks.next_sample()?.map(Arrival::Masks)
+                    }
+                }
+                2 => {
+                    if entering {
+                        self.routes.clear_wakeups();
+                    }
+                    self.routes.next()?.map(Arrival::Route)
+                }
+                3 => match control {
+                    Some(control) => {
+                        if entering {
+                            control.clear_wakeups();
+                        }
+                        control.next()?.map(Arrival::Control)
+                    }
+                    None => None,
+                },
+                _ => return Ok(None),
+            };
+            if next.is_some() {
+                return Ok(next);
+            }
+            drain.advance();
         }
-        if let (Some(b), Some(commands)) = (&mut bridge, &commands) {
-            b.publish_map(&mut *tracker)?;
-            if b.serve(commands, &mut *tracker)?.reset {
+    }
+}
+
+/// Routes a standby keeps: those of the newest frames (a route may come
+/// before its frame).
+const STANDBY_ROUTES: usize = 16;
+
+/// The warm standby: holds the newest frames, masks and routes (bounded as
+/// the active SLAM holds them) without tracking, until the supervisor's
+/// PROMOTE for this process.
+struct Standby<'a> {
+    st: &'a mut State,
+    ports: &'a Ports<'a>,
+    control: &'a Receiver<Control, ()>,
+    /// The first frame it may track, once promoted.
+    promoted_from: Option<u64>,
+    drain: Drain,
+}
+
+impl Service for Standby<'_> {
+    type Event = Arrival;
+
+    fn woke(&mut self) {
+        self.drain.restart();
+    }
+
+    fn next_event(&mut self) -> Result<Option<Arrival>> {
+        self.ports
+            .next(&mut self.drain, self.st, Some(self.control))
+    }
+
+    fn handle(&mut self, event: Event<Arrival>) -> Result<Flow> {
+        match event {
+            Event::Arrived(Arrival::Frame(sample)) => {
+                take_frame(self.st, sample, self.ports.tracks)?
+            }
+            Event::Arrived(Arrival::Masks(sample)) => take_masks(self.st, sample, None),
+            Event::Arrived(Arrival::Route(r)) => {
+                self.st.routes.insert(r.seq, r);
+                // The newest routes stay (trimmed as they come: the same
+                // ones as trimming after the wake-up's last).
+                while self.st.routes.len() > STANDBY_ROUTES {
+                    let oldest = *self.st.routes.keys().min().expect("not empty");
+                    self.st.routes.remove(&oldest);
+                }
+            }
+            Event::Arrived(Arrival::Control(c)) => {
+                if c.kind == control_kind::PROMOTE && c.pid == std::process::id() {
+                    self.promoted_from = Some(c.seq);
+                    return Ok(Flow::Stop);
+                }
+            }
+            Event::Tick | Event::Shutdown => {}
+        }
+        Ok(Flow::Continue)
+    }
+}
+
+/// The active SLAM: tracks the frames it holds as their routes and masks
+/// come, serves the bridge, and at shutdown writes its files.
+struct Slam<'a> {
+    st: State,
+    tracker: Box<dyn Tracker>,
+    bridge: Option<BridgeLink>,
+    commands: Option<&'a Receiver<SlamCommand, ()>>,
+    ports: &'a Ports<'a>,
+    poses: &'a Sender<Pose, ()>,
+    outputs: &'a Outputs,
+    mode: ClockMode,
+    drain: Drain,
+}
+
+impl Service for Slam<'_> {
+    type Event = Arrival;
+
+    fn patience(&self) -> Duration {
+        // A map being saved for the bridge is answered soon after it is
+        // written.
+        match &self.bridge {
+            Some(b) if b.busy() => Duration::from_millis(50),
+            _ => Duration::from_secs(1),
+        }
+    }
+
+    fn woke(&mut self) {
+        self.drain.restart();
+    }
+
+    fn next_event(&mut self) -> Result<Option<Arrival>> {
+        self.ports.next(&mut self.drain, &mut self.st, None)
+    }
+
+    fn handle(&mut self, event: Event<Arrival>) -> Result<Flow> {
+        let st = &mut self.st;
+        match event {
+            Event::Arrived(Arrival::Frame(sample)) => take_frame(st, sample, self.ports.tracks)?,
+            Event::Arrived(Arrival::Masks(sample)) => {
+                take_masks(st, sample, Some(&mut *self.tracker))
+            }
+            Event::Arrived(Arrival::Route(r)) => {
+                st.routes.insert(r.seq, r);
+            }
+            Event::Arrived(Arrival::Control(_)) => {}
+            Event::Tick => self.tick()?,
+            Event::Shutdown => {
+                if let Some(b) = &mut self.bridge {
+                    b.finish()?;
+                }
+                finish(&mut *self.tracker, self.outputs)?;
+            }
+        }
+        Ok(Flow::Continue)
+    }
+}
+
+impl Slam<'_> {
+    /// Tracks the frames that are ready (a promoted standby holds some),
+    /// serves the bridge, and lets a keyframe that waited too long for its
+    /// segmenter masks go in without them.
+    fn tick(&mut self) -> Result<()> {
+        let (st, tracker) = (&mut self.st, &mut *self.tracker);
+        while let Some(track) = track_next_ready(st, tracker, self.mode)? {
+            self.ports.tracks.send(track)?;
+            self.poses.send(Pose::of(&track))?;
+            record_loops(tracker, self.outputs.loops.as_deref())?;
+        }
+        if let (Some(b), Some(commands)) = (&mut self.bridge, self.commands) {
+            b.publish_map(tracker)?;
+            if b.serve(commands, tracker)?.reset {
                 st.pending_keyframe = None;
             }
         }
@@ -261,71 +477,7 @@ fn run(ctx: ServiceContext, outputs: &Outputs, files: MapFiles) -> Result<()> {
                 st.pending_keyframe = None;
             }
         }
-        // A map being saved for the bridge is answered soon after it is
-        // written.
-        let patience = match &bridge {
-            Some(b) if b.busy() => Duration::from_millis(50),
-            _ => Duration::from_secs(1),
-        };
-        if wait(&ws, patience)? == Wake::Terminate {
-            if let Some(b) = &mut bridge {
-                b.finish()?;
-            }
-            return finish(&mut *tracker, outputs);
-        }
-        take_frames(&mut st, &frames, &tracks, max_frames)?;
-        take_masks(&mut st, &masks, Some(&mut *tracker), max_masks)?;
-        for r in routes.drain()? {
-            st.routes.insert(r.seq, r);
-        }
-    }
-}
-
-/// The receivers a standby keeps up to date (and the Tracks sender a
-/// replayed frame is answered on).
-struct Ports<'a> {
-    frames: &'a pipeline::transport::Receiver<[u8], FrameHeader>,
-    masks: &'a pipeline::transport::Receiver<[u8], MasksHeader>,
-    routes: &'a pipeline::transport::Receiver<Route, ()>,
-    tracks: &'a pipeline::transport::Sender<Track, ()>,
-}
-
-/// Routes a standby keeps: those of the newest frames (a route may come
-/// before its frame).
-const STANDBY_ROUTES: usize = 16;
-
-/// The warm standby: holds the newest frames, masks and routes (bounded as
-/// the active SLAM holds them) without tracking, until the supervisor's
-/// PROMOTE for this process; returns the first frame it may track (None:
-/// stopped while standing by).
-fn stand_by(
-    ws: &pipeline::transport::Waiter,
-    ports: &Ports,
-    control: Option<&pipeline::transport::Receiver<Control, ()>>,
-    st: &mut State,
-    max_frames: usize,
-    max_masks: usize,
-) -> Result<Option<u64>> {
-    let control = control.expect("a standby listens to the supervisor");
-    let pid = std::process::id();
-    loop {
-        if wait(ws, Duration::from_secs(1))? == Wake::Terminate {
-            return Ok(None);
-        }
-        take_frames(st, ports.frames, ports.tracks, max_frames)?;
-        take_masks(st, ports.masks, None, max_masks)?;
-        for r in ports.routes.drain()? {
-            st.routes.insert(r.seq, r);
-        }
-        while st.routes.len() > STANDBY_ROUTES {
-            let oldest = *st.routes.keys().min().expect("not empty");
-            st.routes.remove(&oldest);
-        }
-        for c in control.drain()? {
-            if c.kind == control_kind::PROMOTE && c.pid == pid {
-                return Ok(Some(c.seq));
-            }
-        }
+        Ok(())
     }
 }
 
@@ -350,102 +502,73 @@ fn finish(tracker: &mut dyn Tracker, outputs: &Outputs) -> Result<()> {
     Ok(())
 }
 
-/// The frames published since the last wake-up, held (at most `max`); a
-/// replayed frame already tracked gets its Track again.
-fn take_frames(
-    st: &mut State,
-    frames: &pipeline::transport::Receiver<[u8], FrameHeader>,
-    tracks: &pipeline::transport::Sender<Track, ()>,
-    max: usize,
-) -> Result<()> {
-    frames.clear_wakeups();
-    while frames.has_samples()? {
-        if st.frames.len() >= max {
-            st.frames.pop_front();
-        }
-        let Some(sample) = frames.next_sample()? else {
-            break;
-        };
-        let h = *sample.user_header();
-        if h.has(frame_flags::END_OF_STREAM) || h.has(frame_flags::DROPPED_AT_SOURCE) {
-            continue;
-        }
-        if let Some(last) = st.last.filter(|l| h.seq <= l.seq) {
-            if h.seq == last.seq {
-                tracks.send(last)?; // replayed frame: answer again
-            }
-            continue;
-        }
-        st.frames.retain(|f| f.sample.user_header().seq != h.seq);
-        st.frames.push_back(HeldFrame {
-            sample,
-            received_ns: now_ns(),
-        });
+/// A frame published since the last wake-up, held; a replayed frame
+/// already tracked gets its Track again.
+fn take_frame(st: &mut State, sample: FrameSample, tracks: &Sender<Track, ()>) -> Result<()> {
+    let h = *sample.user_header();
+    if h.has(frame_flags::END_OF_STREAM) || h.has(frame_flags::DROPPED_AT_SOURCE) {
+        return Ok(());
     }
+    if let Some(last) = st.last.filter(|l| h.seq <= l.seq) {
+        if h.seq == last.seq {
+            tracks.send(last)?; // replayed frame: answer again
+        }
+        return Ok(());
+    }
+    st.frames.retain(|f| f.sample.user_header().seq != h.seq);
+    st.frames.push_back(HeldFrame {
+        sample,
+        received_ns: now_ns(),
+    });
     Ok(())
 }
 
-/// The masks published since the last wake-up, held (at most `max`; a
-/// frame's segmenter masks beat its propagated ones); segmenter masks
-/// complete the keyframe waiting for them (`tracker`: None for a standby).
-fn take_masks(
-    st: &mut State,
-    masks: &pipeline::transport::Receiver<[u8], MasksHeader>,
-    mut tracker: Option<&mut dyn Tracker>,
-    max_masks: usize,
-) -> Result<()> {
-    masks.clear_wakeups();
-    while masks.has_samples()? {
-        if st.masks.len() >= max_masks {
-            st.masks.pop_front();
-        }
-        let Some(sample) = masks.next_sample()? else {
-            break;
-        };
-        if sample.user_header().has(mask_flags::GONE) {
-            continue; // that frame will not be tracked (the supervisor drops it)
-        }
-        let header = sample.user_header();
-        let seq = header.seq;
-        let segmented = from_segmenter(&sample);
-        if header.has(mask_flags::SEGMENT_WANTED) {
-            st.last_moved = st.last_moved.max(Some(seq));
-        }
-        if segmented {
-            if st.last_segmented.is_none_or(|s| seq > s) {
-                st.segmented_empty = header.num_instances == 0 && !header.has(mask_flags::FAILED);
-                st.last_segmented = Some(seq);
-            }
-            let waiting = st
-                .pending_keyframe
-                .filter(|&k| tracking::completes_waiting_keyframe(k, seq));
-            // A standby has no tracker and no keyframe waiting.
-            if let (Some(waiting), Some(tracker)) = (waiting, tracker.as_deref_mut()) {
-                // The pending keyframe's own masks (or a newer frame's:
-                // its own will not come) complete it.
-                let own = waiting == seq;
-                let view = MasksView::new(sample.user_header(), sample.payload());
-                let failed = sample.user_header().has(mask_flags::FAILED);
-                let masks = view.ok().filter(|_| own && !failed);
-                tracker.complete_keyframe(masks.as_ref());
-                st.pending_keyframe = None;
-                tracing::debug!(seq = waiting, own, "pending keyframe inserted");
-            }
-        }
-        if st.last.is_some_and(|l| seq <= l.seq) {
-            // Real time: the segmenter's result for a frame already
-            // tracked with propagated masks (the propagator takes it as
-            // its prompt), or a propagator's after the segmenter's.
-            continue;
-        }
-        let segmented_held = |m: &MasksSample| m.user_header().seq == seq && from_segmenter(m);
-        if !segmented && st.masks.iter().any(segmented_held) {
-            continue; // a frame's segmenter masks beat its propagated ones
-        }
-        st.masks.retain(|m| m.user_header().seq != seq);
-        st.masks.push_back(sample);
+/// Masks published since the last wake-up, held (a frame's segmenter
+/// masks beat its propagated ones); segmenter masks complete the keyframe
+/// waiting for them (`tracker`: None for a standby).
+fn take_masks(st: &mut State, sample: MasksSample, tracker: Option<&mut dyn Tracker>) {
+    if sample.user_header().has(mask_flags::GONE) {
+        return; // that frame will not be tracked (the supervisor drops it)
     }
-    Ok(())
+    let header = sample.user_header();
+    let seq = header.seq;
+    let segmented = from_segmenter(&sample);
+    if header.has(mask_flags::SEGMENT_WANTED) {
+        st.last_moved = st.last_moved.max(Some(seq));
+    }
+    if segmented {
+        if st.last_segmented.is_none_or(|s| seq > s) {
+            st.segmented_empty = header.num_instances == 0 && !header.has(mask_flags::FAILED);
+            st.last_segmented = Some(seq);
+        }
+        let waiting = st
+            .pending_keyframe
+            .filter(|&k| tracking::completes_waiting_keyframe(k, seq));
+        // A standby has no tracker and no keyframe waiting.
+        if let (Some(waiting), Some(tracker)) = (waiting, tracker) {
+            // The pending keyframe's own masks (or a newer frame's:
+            // its own will not come) complete it.
+            let own = waiting == seq;
+            let view = MasksView::new(sample.user_header(), sample.payload());
+            let failed = sample.user_header().has(mask_flags::FAILED);
+            let masks = view.ok().filter(|_| own && !failed);
+            tracker.complete_keyframe(masks.as_ref());
+            st.pending_keyframe = None;
+            tracing::debug!(seq = waiting, own, "pending keyframe inserted");
+        }
+    }
+    if st.last.is_some_and(|l| seq <= l.seq) {
+        // Real time: the segmenter's result for a frame already
+        // tracked with propagated masks (the propagator takes it as
+        // its prompt), or a propagator's after the segmenter's.
+        return;
+    }
+    let segmented_held = |m: &MasksSample| m.user_header().seq == seq && from_segmenter(m);
+    if !segmented && st.masks.iter().any(segmented_held) {
+        return; // a frame's segmenter masks beat its propagated ones
+    }
+    st.masks.retain(|m| m.user_header().seq != seq);
+    st.masks.push_back(sample);
 }
 
 /// Tracks one ready frame ([`tracking::next_frame`]: oldest first in

@@ -3,15 +3,12 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use anyhow::{anyhow, bail, Result};
 use pipeline::clock::now_ns;
 use pipeline::config::{PipelineConfig, SourceKind};
-use pipeline::progress::Progress;
-use pipeline::transport::{
-    attach, cleanup_dead_nodes, remove_run_files, run_files, wait, waitset, Transport, Wake,
-};
+use pipeline::transport::{cleanup_dead_nodes, remove_run_files, run_files};
 use pipeline::views::MasksView;
 use shared_types::names::{RunNames, Topic};
 use shared_types::{
@@ -20,7 +17,9 @@ use shared_types::{
 };
 
 mod processes;
+mod watch;
 use processes::{clean_previous, Service, SvcState};
+use watch::MasksSample;
 
 use crate::children::{service_program, RestartPolicy};
 use crate::external::ExternalStream;
@@ -308,33 +307,25 @@ impl Supervisor {
         }
     }
 
-    /// Every set of masks published since the last wake-up: noted by the
+    /// A set of masks published since the last wake-up: noted by the
     /// ledger (and the router), recorded (and scored) by `recorder`.
-    fn drain_masks(
-        &mut self,
-        masks: &pipeline::transport::Receiver<[u8], MasksHeader>,
-        recorder: &mut MaskRecorder,
-    ) -> Result<()> {
-        masks.clear_wakeups();
-        while let Some(sample) = masks.next_sample()? {
-            let h = *sample.user_header();
-            if h.has(mask_flags::GONE) {
-                if h.has(mask_flags::UNAVAILABLE) {
-                    let source = MaskSource::from_u32(h.source).unwrap_or(MaskSource::None);
-                    recorder.record_unavailable(h.seq, source);
-                }
-                self.on_masks_gone(&h)?;
-                continue;
+    fn on_masks(&mut self, sample: MasksSample, recorder: &mut MaskRecorder) -> Result<()> {
+        let h = *sample.user_header();
+        if h.has(mask_flags::GONE) {
+            if h.has(mask_flags::UNAVAILABLE) {
+                let source = MaskSource::from_u32(h.source).unwrap_or(MaskSource::None);
+                recorder.record_unavailable(h.seq, source);
             }
-            match MasksView::new(sample.user_header(), sample.payload()) {
-                Ok(view) => {
-                    let segment_wanted = view.header.has(mask_flags::SEGMENT_WANTED);
-                    self.ledger
-                        .on_masks(view.header.seq, view.source(), segment_wanted);
-                    recorder.record(&view)
-                }
-                Err(e) => tracing::warn!("not recording masks: {e:#}"),
+            return self.on_masks_gone(&h);
+        }
+        match MasksView::new(sample.user_header(), sample.payload()) {
+            Ok(view) => {
+                let segment_wanted = view.header.has(mask_flags::SEGMENT_WANTED);
+                self.ledger
+                    .on_masks(view.header.seq, view.source(), segment_wanted);
+                recorder.record(&view)
             }
+            Err(e) => tracing::warn!("not recording masks: {e:#}"),
         }
         Ok(())
     }
@@ -508,7 +499,7 @@ pub fn execute(run_dir: &Path) -> Result<RunSummary> {
         return Err(fail_run(&mut sup, &names, e));
     }
 
-    let interrupted = match supervise(&mut sup) {
+    let interrupted = match watch::supervise(&mut sup) {
         Ok(i) => i,
         Err(e) => {
             // An error path cleans up like the normal one: the services
@@ -602,122 +593,6 @@ fn fail_run(sup: &mut Supervisor, names: &RunNames, error: anyhow::Error) -> any
         tracing::warn!("cannot remove the run's shared memory: {e:#}");
     }
     error
-}
-
-/// The event loop; returns true when interrupted by SIGINT/SIGTERM.
-fn supervise(sup: &mut Supervisor) -> Result<bool> {
-    let transport = Transport::open(&sup.names, "supervisor")?;
-    if sup.config.run.private {
-        // The supervisor's node made the run's management file; the services
-        // create theirs under the inherited umask.
-        let changed = pipeline::transport::make_run_files_private(&sup.names)?;
-        tracing::debug!(changed, "run's shared memory made owner-only");
-    }
-    let frames = transport.slice_receiver::<FrameHeader>(Topic::Frames)?;
-    let tracks = transport.receiver::<Track>(Topic::Tracks)?;
-    let masks = transport.slice_receiver::<MasksHeader>(Topic::Masks)?;
-    // The source's frames, listed once: the progress bar's length and the
-    // timestamps the ground-truth masks are looked up by.
-    let listed = sup.config.source.recorded_frames().ok();
-    let expected = listed.as_ref().map_or(0, |f| f.len() as u64);
-    let truth = match (
-        datasets::source::MaskList::open(&sup.config.source.path),
-        listed,
-    ) {
-        (Ok(Some(masks)), Some(frames)) => Some(run_folder::mask_record::Truth {
-            masks,
-            timestamps: frames.iter().map(|f| f.timestamp).collect(),
-            ignore: run_folder::ignore::IgnoreRegions::open(&sup.config.source.path)?,
-        }),
-        _ => None,
-    };
-    let mut recorder = MaskRecorder::start(&sup.run_dir, sup.config.run.save_masks, truth)?;
-    let lifecycle = transport.receiver::<Lifecycle>(Topic::Lifecycle)?;
-    let routes = transport.sender::<Route>(Topic::Routes)?;
-    let control = transport.sender::<Control>(Topic::Control)?;
-    let ws = waitset()?;
-    let _a = attach(&ws, &frames)?;
-    let _b = attach(&ws, &tracks)?;
-    let _c = attach(&ws, &lifecycle)?;
-    let _d = attach(&ws, &masks)?;
-    let period = Duration::from_millis(sup.config.supervisor.watch_period_ms);
-
-    let kinds: Vec<ServiceKind> = sup
-        .services
-        .iter()
-        .map(|s| s.kind)
-        .filter(|k| *k != ServiceKind::CameraReader)
-        .collect();
-    for kind in kinds {
-        sup.start(kind);
-    }
-    // A progress bar over the frames the source will play (known up front
-    // from its lists; the reader announces the exact end of the stream).
-    let mut progress = Progress::new("frames", expected);
-    let mut shown = 0u64;
-    let mut last_sweep = Instant::now();
-    let mut interrupted = false;
-    loop {
-        if wait(&ws, period)? == Wake::Terminate {
-            tracing::warn!("termination requested; stopping the services");
-            interrupted = true;
-            break;
-        }
-        for msg in lifecycle.drain()? {
-            sup.on_ready(msg, &control)?;
-        }
-        sup.start_source_when_ready();
-        for t in tracks.drain()? {
-            sup.on_track(t)?;
-        }
-        sup.drain_masks(&masks, &mut recorder)?;
-        frames.clear_wakeups();
-        while let Some(sample) = frames.next_sample()? {
-            let header = *sample.user_header();
-            let problem = match &mut sup.external {
-                Some(stream) => stream
-                    .check(&header, sample.payload().len(), &sup.config)
-                    .err(),
-                None => None,
-            };
-            drop(sample);
-            sup.on_frame(&header, problem, &routes)?;
-        }
-        sup.route_ready(&routes)?;
-        // Services only fail when one dies: what follows from it is decided then.
-        sup.on_deaths(&routes, &control, &tracks)?;
-        sup.check_stall();
-        if sup.fatal.is_some() {
-            break;
-        }
-        if last_sweep.elapsed() > Duration::from_secs(1) {
-            cleanup_dead_nodes(&sup.names)?;
-            last_sweep = Instant::now();
-        }
-        if expected > 0 && sup.ledger.recorded().len() != shown {
-            shown = sup.ledger.recorded().len();
-            progress.set(shown);
-        }
-        if sup.ledger.complete() {
-            break;
-        }
-        // Real time: the last frames may never be tracked; they get a moment.
-        for d in sup.ledger.on_tick(Instant::now()) {
-            sup.write_dropped(d)?;
-        }
-
-        if sup.status_dirty {
-            sup.write_status("running", None);
-        }
-    }
-    progress.finish();
-    sup.stop_all();
-    sup.watch_children(true)?;
-    let skipped = recorder.finish()?;
-    if skipped > 0 {
-        tracing::warn!("{skipped} sets of masks were not recorded (the writer fell behind)");
-    }
-    Ok(interrupted)
 }
 
 /// Trajectories, latency summary and trace, derived from `frames.csv`.

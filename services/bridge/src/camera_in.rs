@@ -19,19 +19,17 @@ use anyhow::Result;
 use pipeline::clock::now_ns;
 use pipeline::config::PipelineConfig;
 use pipeline::runtime::{InputError, ServiceContext};
-use pipeline::transport::{attach, wait, waitset, Sender, Wake};
+use pipeline::service_loop::{self, Drain, Event, Flow, Service};
+use pipeline::transport::{attach, waitset, Receiver, Sender};
+use scheduling::source::{Backlog, SourceCommand};
 use shared_types::names::Topic;
-use shared_types::{frame_flags, write_error_text, FrameHeader, PixelFormat, Track};
+use shared_types::{frame_flags, write_error_text, Control, FrameHeader, PixelFormat, Track};
 
 use crate::msgs::{self, Time};
 use crate::node::{RosNode, TopicSubscriber};
 
 /// Samples of one topic kept while they wait for their pair.
 const PAIRING_QUEUE: usize = 8;
-/// Frames published and not yet passed by a Track beyond which the next
-/// is left out (as the camera-reader's real-time backlog).
-const BACKLOG: usize = 3;
-const BACKLOG_TIMEOUT: Duration = Duration::from_secs(1);
 /// How long one look at the topics sleeps at most.
 const POLL: Duration = Duration::from_millis(5);
 
@@ -293,25 +291,6 @@ pub fn camera_section(config: &PipelineConfig) -> Result<String> {
     .into())
 }
 
-/// Frames published and not yet passed by a Track.
-#[derive(Default)]
-struct Backlog {
-    newest_tracked: Option<u64>,
-    published: VecDeque<(u64, Instant)>,
-}
-
-impl Backlog {
-    fn on_track(&mut self, t: &Track) {
-        self.newest_tracked = self.newest_tracked.max(Some(t.seq));
-    }
-    fn full(&mut self) -> bool {
-        let newest = self.newest_tracked;
-        self.published
-            .retain(|&(s, at)| newest.is_none_or(|t| s > t) && at.elapsed() < BACKLOG_TIMEOUT);
-        newest.is_some() && self.published.len() >= BACKLOG
-    }
-}
-
 /// The camera stream: runs until SIGTERM, or until no frame came for
 /// `end_after_idle_s` after the first.
 pub fn serve(ctx: ServiceContext, start_seq: u64) -> Result<()> {
@@ -326,8 +305,10 @@ pub fn serve(ctx: ServiceContext, start_seq: u64) -> Result<()> {
     let depth = (!ros2.depth_topic.is_empty())
         .then(|| node.subscriber(&ros2.depth_topic))
         .transpose()?;
+    let control = ctx.transport.receiver::<Control>(Topic::Control)?;
     let ws = waitset()?;
     let _t = attach(&ws, &tracks)?;
+    let _c = attach(&ws, &control)?;
     ctx.announce_ready()?;
     tracing::info!(
         "ROS 2 camera: colour {}{}",
@@ -336,7 +317,7 @@ pub fn serve(ctx: ServiceContext, start_seq: u64) -> Result<()> {
             .as_ref()
             .map_or(", no depth".to_string(), |d| format!(", depth {}", d.topic))
     );
-    let mut stream = Stream {
+    let stream = Stream {
         cfg,
         sender,
         seq: start_seq,
@@ -348,57 +329,145 @@ pub fn serve(ctx: ServiceContext, start_seq: u64) -> Result<()> {
     };
     let idle_end =
         (ros2.end_after_idle_s > 0.0).then(|| Duration::from_secs_f64(ros2.end_after_idle_s));
-    let mut last_frame: Option<Instant> = None;
-    loop {
-        if wait(&ws, POLL)? == Wake::Terminate {
-            break;
-        }
-        tracks.clear_wakeups();
-        while let Some(t) = tracks.next()? {
-            stream.backlog.on_track(&t);
-        }
-        let mut got = false;
-        while let Some((dds, payload)) = colour.next() {
-            got = true;
-            stream.on_colour(&colour, &dds, payload)?;
-        }
-        if let Some(d) = &depth {
-            while let Some((dds, payload)) = d.next() {
-                got = true;
-                stream.on_depth(d, &dds, &payload)?;
-            }
-        }
-        if stream.pair(depth.is_some())? {
-            last_frame = Some(Instant::now());
-        }
-        if !got {
-            if let (Some(limit), Some(last)) = (idle_end, last_frame) {
-                if last.elapsed() > limit {
-                    tracing::info!(
-                        frames = stream.seq - start_seq,
-                        "no frame for {:.1} s: the ROS 2 stream ended",
-                        limit.as_secs_f64()
-                    );
-                    publish_header(
-                        &stream.sender,
-                        FrameHeader {
-                            seq: stream.seq,
-                            flags: frame_flags::END_OF_STREAM,
-                            ..Default::default()
-                        },
-                    )?;
-                    // The supervisor stops the run; wait for its SIGTERM.
-                    while wait(&ws, Duration::from_secs(1))? != Wake::Terminate {}
-                    break;
-                }
-            }
-        }
-    }
-    let dropped: u64 = stream.dropped.0.values().sum();
+    let mut camera = CameraIn {
+        stream,
+        tracks: &tracks,
+        control: &control,
+        colour: &colour,
+        depth: depth.as_ref(),
+        idle_end,
+        last_frame: None,
+        start_seq,
+        ended: false,
+        drain: Drain::default(),
+    };
+    service_loop::run(&ws, &mut camera)?;
+    let dropped: u64 = camera.stream.dropped.0.values().sum();
     if dropped > 0 {
-        tracing::warn!("samples dropped: {:?}", stream.dropped.0);
+        tracing::warn!("samples dropped: {:?}", camera.stream.dropped.0);
     }
     Ok(())
+}
+
+/// What arrives for the camera stream from the run, in the order a wake-up
+/// drains it (the ROS 2 topics are read at each tick: Zenoh does not wake
+/// the WaitSet).
+enum Arrival {
+    Control(Control),
+    Track(Track),
+}
+
+/// The camera's topics into the run's frames, one look at them a tick.
+struct CameraIn<'a> {
+    stream: Stream<'a>,
+    tracks: &'a Receiver<Track, ()>,
+    control: &'a Receiver<Control, ()>,
+    colour: &'a TopicSubscriber,
+    depth: Option<&'a TopicSubscriber>,
+    /// No frame for this long after the first ends the stream.
+    idle_end: Option<Duration>,
+    last_frame: Option<Instant>,
+    start_seq: u64,
+    /// The end of the stream is out: waiting for the supervisor's stop.
+    ended: bool,
+    drain: Drain,
+}
+
+impl CameraIn<'_> {
+    /// Reads what the topics brought, publishes the newest pair; after
+    /// `idle_end` without a frame, the end of the stream.
+    fn look(&mut self) -> Result<()> {
+        let mut got = false;
+        while let Some((dds, payload)) = self.colour.next() {
+            got = true;
+            self.stream.on_colour(self.colour, &dds, payload)?;
+        }
+        if let Some(d) = self.depth {
+            while let Some((dds, payload)) = d.next() {
+                got = true;
+                self.stream.on_depth(d, &dds, &payload)?;
+            }
+        }
+        if self.stream.pair(self.depth.is_some())? {
+            self.last_frame = Some(Instant::now());
+        }
+        if let (false, Some(limit), Some(last)) = (got, self.idle_end, self.last_frame) {
+            if last.elapsed() > limit {
+                tracing::info!(
+                    frames = self.stream.seq - self.start_seq,
+                    "no frame for {:.1} s: the ROS 2 stream ended",
+                    limit.as_secs_f64()
+                );
+                publish_header(
+                    &self.stream.sender,
+                    FrameHeader {
+                        seq: self.stream.seq,
+                        flags: frame_flags::END_OF_STREAM,
+                        ..Default::default()
+                    },
+                )?;
+                // The supervisor stops the run; its SIGTERM ends the loop.
+                self.ended = true;
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Service for CameraIn<'_> {
+    type Event = Arrival;
+
+    fn patience(&self) -> Duration {
+        if self.ended {
+            Duration::from_secs(1)
+        } else {
+            POLL
+        }
+    }
+
+    fn woke(&mut self) {
+        self.drain.restart();
+    }
+
+    fn next_event(&mut self) -> Result<Option<Arrival>> {
+        loop {
+            let entering = self.drain.entering();
+            let next = match self.drain.stage() {
+                0 => {
+                    if entering {
+                        self.control.clear_wakeups();
+                    }
+                    self.control.next()?.map(Arrival::Control)
+                }
+                1 => {
+                    if entering {
+                        self.tracks.clear_wakeups();
+                    }
+                    self.tracks.next()?.map(Arrival::Track)
+                }
+                _ => return Ok(None),
+            };
+            if next.is_some() {
+                return Ok(next);
+            }
+            self.drain.advance();
+        }
+    }
+
+    fn handle(&mut self, event: Event<Arrival>) -> Result<Flow> {
+        match event {
+            // A restarted SLAM never answers for the frames before it.
+            Event::Arrived(Arrival::Control(c)) => {
+                if SourceCommand::from_control(&c) == Some(SourceCommand::ForgetBacklog) {
+                    self.stream.backlog.forget();
+                }
+            }
+            Event::Arrived(Arrival::Track(t)) => self.stream.backlog.on_track(t.seq),
+            Event::Tick if !self.ended => self.look()?,
+            Event::Tick | Event::Shutdown => {}
+        }
+        Ok(Flow::Continue)
+    }
 }
 
 fn publish_header(sender: &Sender<[u8], FrameHeader>, mut header: FrameHeader) -> Result<()> {
@@ -537,7 +606,7 @@ impl Stream<'_> {
 
     fn publish(&mut self, rgb: Rgb, depth: Option<Depth>, arrived: u64) -> Result<()> {
         let mut header = self.header(&rgb, depth.is_some(), arrived);
-        if self.backlog.full() {
+        if self.backlog.full(now_ns()) {
             header.flags |= frame_flags::DROPPED_AT_SOURCE;
             header.has_depth = 0;
             publish_header(&self.sender, header)?;
@@ -566,7 +635,7 @@ impl Stream<'_> {
         header.stamps.published_ns = now_ns();
         *sample.user_header_mut() = header;
         self.sender.publish(sample)?;
-        self.backlog.published.push_back((self.seq, Instant::now()));
+        self.backlog.published(self.seq, now_ns());
         self.seq += 1;
         Ok(())
     }

@@ -9,6 +9,8 @@
 //! - [`node`]: a ROS 2 node on a Zenoh session;
 //! - [`odom`]: the robot's `odom -> base_link` from `/tf` (REP-105);
 //! - [`outputs`]: what is published when, and what survives a restart;
+//! - [`publish`]: the service loop of `bridge publish` (the run out, the
+//!   map services in);
 //! - [`grid`]: the occupancy grid projected from the map's points;
 //! - [`services`]: `save_map`, `reset`, `set_localization_mode` (queryables
 //!   answered by the SLAM);
@@ -24,5 +26,6 @@ pub mod msgs;
 pub mod node;
 pub mod odom;
 pub mod outputs;
+pub mod publish;
 pub mod rmw;
 pub mod services;

@@ -408,14 +408,13 @@ def sdk(args):
                              [m.header.stamp.sec, m.header.stamp.nanosec, m.pose.pose.position.x]),
                          router_ip=host, router_port=int(port), domain_id=args.domain)
     print("ready", flush=True)
-    topics = []
+    # The graph as the query that found the topic saw it: a second query could come after a short
+    # run's bridge has left the graph.
+    types = []
     deadline = time.time() + args.seconds
-    while time.time() < deadline and not topics:
-        topics = [t for t, _ in get_topic_names_and_types(domain_id=args.domain, router_ip=host,
-                                                          router_port=int(port))
-                  if t == args.topic]
+    while time.time() < deadline and not any(t == args.topic for t, _ in types):
+        types = get_topic_names_and_types(domain_id=args.domain, router_ip=host, router_port=int(port))
         time.sleep(0.2)
-    types = get_topic_names_and_types(domain_id=args.domain, router_ip=host, router_port=int(port))
     wait_for_end(args.seconds)
     with open(args.out, "w") as f:
         json.dump({"topics": types, "received": received, "subscriber_hash": sub.type_hash}, f)

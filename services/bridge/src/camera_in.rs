@@ -430,28 +430,13 @@ impl Service for CameraIn<'_> {
     }
 
     fn next_event(&mut self) -> Result<Option<Arrival>> {
-        loop {
-            let entering = self.drain.entering();
-            let next = match self.drain.stage() {
-                0 => {
-                    if entering {
-                        self.control.clear_wakeups();
-                    }
-                    self.control.next()?.map(Arrival::Control)
-                }
-                1 => {
-                    if entering {
-                        self.tracks.clear_wakeups();
-                    }
-                    self.tracks.next()?.map(Arrival::Track)
-                }
-                _ => return Ok(None),
-            };
-            if next.is_some() {
-                return Ok(next);
-            }
-            self.drain.advance();
-        }
+        let (control, tracks) = (self.control, self.tracks);
+        self.drain.next(2, |stage, entering| {
+            Ok(match stage {
+                0 => control.entered(entering).next()?.map(Arrival::Control),
+                _ => tracks.entered(entering).next()?.map(Arrival::Track),
+            })
+        })
     }
 
     fn handle(&mut self, event: Event<Arrival>) -> Result<Flow> {

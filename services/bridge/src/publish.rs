@@ -180,48 +180,23 @@ impl Service for Publish<'_> {
     }
 
     fn next_event(&mut self) -> Result<Option<Arrival>> {
-        loop {
-            let entering = self.drain.entering();
-            let next = match self.drain.stage() {
-                0 => match self.masks {
-                    Some(m) => {
-                        if entering {
-                            m.clear_wakeups();
-                        }
-                        m.next_sample()?.map(Arrival::Masks)
-                    }
+        let (masks, tracks, tf, poses, map) =
+            (self.masks, self.tracks, self.tf, self.poses, self.map);
+        self.drain.next(5, |stage, entering| {
+            Ok(match stage {
+                0 => match masks {
+                    Some(m) => m.entered(entering).next_sample()?.map(Arrival::Masks),
                     None => None,
                 },
-                1 => {
-                    if entering {
-                        self.tracks.clear_wakeups();
-                    }
-                    self.tracks.next()?.map(Arrival::Track)
-                }
+                1 => tracks.entered(entering).next()?.map(Arrival::Track),
                 // Zenoh's subscriber does not wake the WaitSet: read each time.
-                2 => self
-                    .tf
+                2 => tf
                     .and_then(|tf| tf.next())
                     .map(|(dds, payload)| Arrival::Tf(dds, payload)),
-                3 => {
-                    if entering {
-                        self.poses.clear_wakeups();
-                    }
-                    self.poses.next()?.map(Arrival::Pose)
-                }
-                4 => {
-                    if entering {
-                        self.map.clear_wakeups();
-                    }
-                    self.map.next_sample()?.map(Arrival::Map)
-                }
-                _ => return Ok(None),
-            };
-            if next.is_some() {
-                return Ok(next);
-            }
-            self.drain.advance();
-        }
+                3 => poses.entered(entering).next()?.map(Arrival::Pose),
+                _ => map.entered(entering).next_sample()?.map(Arrival::Map),
+            })
+        })
     }
 
     fn handle(&mut self, event: Event<Arrival>) -> Result<Flow> {

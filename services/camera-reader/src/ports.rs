@@ -71,28 +71,13 @@ pub(crate) fn next_arrival(
     control: &Receiver<Control, ()>,
     tracks: Option<&Receiver<Track, ()>>,
 ) -> Result<Option<Arrival>> {
-    loop {
-        let entering = drain.entering();
-        let next = match (drain.stage(), tracks) {
-            (0, _) => {
-                if entering {
-                    control.clear_wakeups();
-                }
-                control.next()?.map(Arrival::Control)
-            }
-            (1, Some(tracks)) => {
-                if entering {
-                    tracks.clear_wakeups();
-                }
-                tracks.next()?.map(Arrival::Track)
-            }
-            _ => return Ok(None),
-        };
-        if next.is_some() {
-            return Ok(next);
-        }
-        drain.advance();
-    }
+    drain.next(2, |stage, entering| {
+        Ok(match (stage, tracks) {
+            (0, _) => control.entered(entering).next()?.map(Arrival::Control),
+            (_, Some(tracks)) => tracks.entered(entering).next()?.map(Arrival::Track),
+            (_, None) => None,
+        })
+    })
 }
 
 /// Real time: the frames decoded and published that SLAM has not passed

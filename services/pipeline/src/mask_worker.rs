@@ -120,34 +120,17 @@ impl Service for WorkerLoop<'_> {
     }
 
     fn next_event(&mut self) -> Result<Option<Arrival>> {
-        loop {
-            let entering = self.drain.entering();
-            let next = match self.drain.stage() {
-                0 => {
-                    if entering {
-                        self.routes.clear_wakeups();
-                    }
-                    self.routes.next()?.map(Arrival::Route)
-                }
-                1 => {
-                    if entering {
-                        self.frames.clear_wakeups();
-                    }
-                    self.frames.next_sample()?.map(Arrival::Frame)
-                }
-                2 => {
-                    if entering {
-                        self.masks_in.clear_wakeups();
-                    }
-                    self.masks_in.next_sample()?.map(Arrival::Masks)
-                }
-                _ => return Ok(None),
-            };
-            if next.is_some() {
-                return Ok(next);
-            }
-            self.drain.advance();
-        }
+        let (routes, frames, masks_in) = (self.routes, self.frames, self.masks_in);
+        self.drain.next(3, |stage, entering| {
+            Ok(match stage {
+                0 => routes.entered(entering).next()?.map(Arrival::Route),
+                1 => frames.entered(entering).next_sample()?.map(Arrival::Frame),
+                _ => masks_in
+                    .entered(entering)
+                    .next_sample()?
+                    .map(Arrival::Masks),
+            })
+        })
     }
 
     fn handle(&mut self, event: Event<Arrival>) -> Result<Flow> {

@@ -110,6 +110,25 @@ impl Drain {
         self.stage += 1;
         self.entered = false;
     }
+
+    /// The next event of this wake-up from a service's `receivers`
+    /// receivers, in drain order: `pull(stage, entering)` is receiver
+    /// `stage`'s next event (None: drained, or a receiver the service does
+    /// not have); `entering` as [`Self::entering`].
+    pub fn next<E>(
+        &mut self,
+        receivers: usize,
+        mut pull: impl FnMut(usize, bool) -> Result<Option<E>>,
+    ) -> Result<Option<E>> {
+        while self.stage < receivers {
+            let entering = self.entering();
+            if let Some(event) = pull(self.stage, entering)? {
+                return Ok(Some(event));
+            }
+            self.advance();
+        }
+        Ok(None)
+    }
 }
 
 #[cfg(test)]
@@ -124,5 +143,26 @@ mod tests {
         assert_eq!((d.stage(), d.entering(), d.entering()), (1, true, false));
         d.restart();
         assert_eq!((d.stage(), d.entering()), (0, true));
+    }
+
+    #[test]
+    fn next_pulls_each_receiver_until_drained_entering_it_once() {
+        let mut queues = [vec![1, 2], vec![], vec![3]];
+        let mut entered = Vec::new();
+        let mut d = Drain::default();
+        let mut got = Vec::new();
+        while let Some(e) = d
+            .next(3, |stage, entering| {
+                if entering {
+                    entered.push(stage);
+                }
+                Ok(queues[stage].pop())
+            })
+            .unwrap()
+        {
+            got.push(e);
+        }
+        assert_eq!((got, entered), (vec![2, 1, 3], vec![0, 1, 2]));
+        assert_eq!(d.next(3, |_, _| Ok(Some(9))).unwrap(), None);
     }
 }

@@ -456,6 +456,16 @@ impl<P: Debug + IceoryxSend + ?Sized + 'static, H: Debug + ZeroCopySend> Receive
         &self.listener
     }
 
+    /// This receiver, its wake-ups cleared first when a wake-up's drain is
+    /// `entering` it ([`crate::service_loop::Drain`]): a sample that arrives
+    /// while it is drained wakes the loop again.
+    pub fn entered(&self, entering: bool) -> &Self {
+        if entering {
+            self.clear_wakeups();
+        }
+        self
+    }
+
     /// Consumes pending wake-ups. Call before draining with `receive`, so a
     /// sample that arrives afterwards wakes the WaitSet again.
     pub fn clear_wakeups(&self) {

@@ -83,58 +83,42 @@ impl Ports<'_> {
         st: &mut State,
         control: Option<&Receiver<Control, ()>>,
     ) -> Result<Option<Arrival>> {
-        loop {
-            let entering = drain.entering();
-            let next = match drain.stage() {
-                0 => {
-                    if entering {
-                        self.frames.clear_wakeups();
-                    }
-                    if !self.frames.has_samples()? {
-                        None
-                    } else {
-                        if st.frames.len() >= self.max_frames {
-                            st.frames.pop_front();
-                        }
-                        self.frames.next_sample()?.map(Arrival::Frame)
-                    }
-                }
+        drain.next(4, |stage, entering| {
+            Ok(match stage {
+                0 => make_room_and_take(
+                    self.frames.entered(entering),
+                    &mut st.frames,
+                    self.max_frames,
+                )?
+                .map(Arrival::Frame),
                 1 => {
-                    if entering {
-                        self.masks.clear_wakeups();
-                    }
-                    if !self.masks.has_samples()? {
-                        None
-                    } else {
-                        if st.masks.len() >= self.max_masks {
-                            st.masks.pop_front();
-                        }
-                        self.masks.next_sample()?.map(Arrival::Masks)
-                    }
+                    make_room_and_take(self.masks.entered(entering), &mut st.masks, self.max_masks)?
+                        .map(Arrival::Masks)
                 }
-                2 => {
-                    if entering {
-                        self.routes.clear_wakeups();
-                    }
-                    self.routes.next()?.map(Arrival::Route)
-                }
-                3 => match control {
-                    Some(control) => {
-                        if entering {
-                            control.clear_wakeups();
-                        }
-                        control.next()?.map(Arrival::Control)
-                    }
+                2 => self.routes.entered(entering).next()?.map(Arrival::Route),
+                _ => match control {
+                    Some(control) => control.entered(entering).next()?.map(Arrival::Control),
                     None => None,
                 },
-                _ => return Ok(None),
-            };
-            if next.is_some() {
-                return Ok(next);
-            }
-            drain.advance();
-        }
+            })
+        })
     }
+}
+
+/// The next sample of `receiver`, the oldest of `held` let go first when
+/// `max` are held (the topic's borrow limit).
+fn make_room_and_take<H: std::fmt::Debug + iceoryx2::prelude::ZeroCopySend, T>(
+    receiver: &Receiver<[u8], H>,
+    held: &mut VecDeque<T>,
+    max: usize,
+) -> Result<Option<Sample<Svc, [u8], H>>> {
+    if !receiver.has_samples()? {
+        return Ok(None);
+    }
+    if held.len() >= max {
+        held.pop_front();
+    }
+    receiver.next_sample()
 }
 
 /// A frame published since the last wake-up, held; a replayed frame

@@ -158,42 +158,19 @@ impl service_loop::Service for Watch<'_> {
 
     fn next_event(&mut self) -> Result<Option<Arrival>> {
         let p = &self.ports;
-        loop {
-            let entering = self.drain.entering();
-            let next = match self.drain.stage() {
-                0 => {
-                    if entering {
-                        p.lifecycle.clear_wakeups();
-                    }
-                    p.lifecycle.next()?.map(Arrival::Ready)
-                }
-                1 if entering => Some(Arrival::ServicesSettled),
-                2 => {
-                    if entering {
-                        p.tracks.clear_wakeups();
-                    }
-                    p.tracks.next()?.map(Arrival::Track)
-                }
-                3 => {
-                    if entering {
-                        p.masks.clear_wakeups();
-                    }
-                    p.masks.next_sample()?.map(Arrival::Masks)
-                }
-                4 => {
-                    if entering {
-                        p.frames.clear_wakeups();
-                    }
-                    p.frames.next_sample()?.map(Arrival::Frame)
-                }
-                1 => None,
-                _ => return Ok(None),
-            };
-            if next.is_some() {
-                return Ok(next);
-            }
-            self.drain.advance();
-        }
+        self.drain.next(5, |stage, entering| {
+            Ok(match stage {
+                0 => p.lifecycle.entered(entering).next()?.map(Arrival::Ready),
+                1 => entering.then_some(Arrival::ServicesSettled),
+                2 => p.tracks.entered(entering).next()?.map(Arrival::Track),
+                3 => p.masks.entered(entering).next_sample()?.map(Arrival::Masks),
+                _ => p
+                    .frames
+                    .entered(entering)
+                    .next_sample()?
+                    .map(Arrival::Frame),
+            })
+        })
     }
 
     fn handle(&mut self, event: Event<Arrival>) -> Result<Flow> {

@@ -93,6 +93,17 @@ pub fn run_service(
     args: &ServiceArgs,
     body: impl FnOnce(ServiceContext) -> Result<()>,
 ) -> ExitCode {
+    run_service_body(kind, args, Box::new(body))
+}
+
+/// [`run_service`] behind a boxed body, so that its config parsing and
+/// transport setup (generic code of toml, serde and iceoryx2) are compiled
+/// once here rather than again in every service binary.
+fn run_service_body(
+    kind: ServiceKind,
+    args: &ServiceArgs,
+    body: Box<dyn FnOnce(ServiceContext) -> Result<()> + '_>,
+) -> ExitCode {
     init_logging();
     let span = tracing::info_span!("service", name = kind.as_str());
     let _enter = span.enter();

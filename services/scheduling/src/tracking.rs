@@ -32,6 +32,57 @@ pub fn next_frame(mode: ClockMode, ready: &[bool]) -> Option<usize> {
     }
 }
 
+/// Weight of the newest tracked frame in [`FlowPace`]'s moving average
+/// (about the last ten count).
+const PACE_WEIGHT: f64 = 0.1;
+
+/// [`FlowPace`]: the share of the camera's frames left untracked above
+/// which the SLAM counts as behind. Real time on 2 cores drops 0-5 % at
+/// 30 fps with two busy processes and 40 % at 60 fps
+/// (docs/measurements.md "Frames tracked by flow, when behind").
+pub const BEHIND_DROP_SHARE: f64 = 0.1;
+
+/// Real time: whether the pipeline is behind the camera, so that frames
+/// may be tracked by optical flow (`services.slam.flow_frames`): more than
+/// [`BEHIND_DROP_SHARE`] of the recent frames went untracked (dropped by
+/// the SLAM or before it). Following points halves the SLAM's time per
+/// frame, and the CPU it frees lets the other stages keep up too, but under
+/// load it tracks a little less accurately; so a pipeline that keeps up
+/// extracts every frame. A moving average, so that the flow frames' own
+/// speed does not switch it back and forth frame by frame. Lockstep is
+/// never behind: the camera waits for each frame.
+#[derive(Debug, Clone, Default)]
+pub struct FlowPace {
+    /// Moving average of the camera's frames per tracked frame (1: none
+    /// dropped).
+    frames_per_track: Option<f64>,
+    /// The last tracked frame's sequence number.
+    last: Option<u64>,
+}
+
+impl FlowPace {
+    /// Notes that frame `seq` was tracked (whatever the outcome).
+    pub fn tracked(&mut self, seq: u64) {
+        if let Some(last) = self.last.filter(|&last| seq > last) {
+            let passed = (seq - last) as f64;
+            self.frames_per_track = Some(
+                self.frames_per_track
+                    .map_or(passed, |old| old + PACE_WEIGHT * (passed - old)),
+            );
+        }
+        self.last = Some(seq);
+    }
+
+    /// The next frame may be tracked by flow: real time, and more than
+    /// [`BEHIND_DROP_SHARE`] of the recent frames were not tracked.
+    pub fn behind(&self, mode: ClockMode) -> bool {
+        matches!(mode, ClockMode::Realtime)
+            && self
+                .frames_per_track
+                .is_some_and(|f| 1.0 - 1.0 / f > BEHIND_DROP_SHARE)
+    }
+}
+
 /// Frame `seq` counts the segmenter as alive: its newest answer is at most
 /// [`SEGMENTER_PATIENCE`] frames older.
 pub fn segmenter_alive(seq: u64, last_segmented: Option<u64>) -> bool {

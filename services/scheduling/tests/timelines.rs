@@ -11,7 +11,7 @@ use scheduling::source::{
 };
 use scheduling::tracking::{
     completes_waiting_keyframe, frame_ready, keyframe_waited_too_long, next_frame, segmenter_alive,
-    SEGMENTER_PATIENCE,
+    FlowPace, SEGMENTER_PATIENCE,
 };
 use scheduling::worker::{Next, WorkQueue};
 use scheduling::{Availability, ClockMode, RoutingConfig};
@@ -767,6 +767,49 @@ fn slam_tracks_the_oldest_ready_frame_in_lockstep_and_the_newest_in_real_time() 
     assert_eq!(next_frame(ClockMode::Lockstep, &ready), Some(1));
     assert_eq!(next_frame(ClockMode::Realtime, &ready), Some(3));
     assert_eq!(next_frame(ClockMode::Realtime, &[false, false]), None);
+}
+
+#[test]
+fn a_real_time_pipeline_that_drops_frames_follows_by_flow_until_it_keeps_up_again() {
+    use ClockMode::{Lockstep, Realtime};
+    let mut pace = FlowPace::default();
+    assert!(!pace.behind(Realtime), "nothing measured yet");
+    pace.tracked(0);
+    assert!(!pace.behind(Realtime), "one frame tells nothing");
+    // 60 fps on a loaded machine: every other frame dropped.
+    for seq in (2..20).step_by(2) {
+        pace.tracked(seq);
+        assert!(pace.behind(Realtime), "frame {seq}");
+        assert!(!pace.behind(Lockstep), "lockstep never follows");
+    }
+    // Now every frame: behind for a few more frames, then keeping up.
+    let mut frames_until_keeping_up = None;
+    for seq in 19..60 {
+        pace.tracked(seq);
+        if !pace.behind(Realtime) {
+            frames_until_keeping_up = Some(seq - 18);
+            break;
+        }
+    }
+    assert!(
+        matches!(frames_until_keeping_up, Some(n) if (5..=30).contains(&n)),
+        "{frames_until_keeping_up:?}"
+    );
+    // 30 fps with a frame dropped now and then (1 in 30, as with two busy
+    // processes): keeping up, every frame extracted.
+    let mut pace = FlowPace::default();
+    let mut seq = 0;
+    for k in 0..300 {
+        seq += if k % 30 == 29 { 2 } else { 1 };
+        pace.tracked(seq);
+        assert!(!pace.behind(Realtime), "frame {seq}");
+    }
+    // A burst of drops (a busy second) is behind at once.
+    for _ in 0..3 {
+        seq += 3;
+        pace.tracked(seq);
+    }
+    assert!(pace.behind(Realtime));
 }
 
 #[test]

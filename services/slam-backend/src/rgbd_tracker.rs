@@ -190,7 +190,7 @@ impl Tracker for RgbdTracker {
             height: h,
             timestamp: frame.header.source_timestamp,
         };
-        let r = self.system.track_with(&rgbd, input.keyframe);
+        let r = self.system.track_paced(&rgbd, input.keyframe, input.pace);
         let (t, q) = (r.pose_wc.translation.vector, r.pose_wc.rotation);
         TrackOutcome {
             pose: [t.x, t.y, t.z, q.i, q.j, q.k, q.w],

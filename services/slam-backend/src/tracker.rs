@@ -3,7 +3,7 @@
 use pipeline::views::{FrameView, MasksView};
 use shared_types::{MaskSource, TrackCounts, TrackState};
 use slam_core::local_mapping::snapshot::MapSnapshot;
-use slam_core::KeyframeTiming;
+use slam_core::{KeyframeTiming, Pace};
 
 /// Everything a tracker gets for one frame.
 pub struct TrackInput<'a> {
@@ -16,6 +16,9 @@ pub struct TrackInput<'a> {
     pub masks: Option<&'a MasksView<'a>>,
     /// When the frame becomes a keyframe if the tracker's rule picks it.
     pub keyframe: KeyframeTiming,
+    /// Whether the SLAM is behind its frames ([`scheduling::tracking::behind`]):
+    /// only then may the frame be tracked by optical flow.
+    pub pace: Pace,
 }
 
 impl TrackInput<'_> {

@@ -102,6 +102,10 @@ pub struct FrameContext<'a> {
     pub bounds: Bounds,
     /// Each pyramid level's scale (level 0: 1).
     pub level_scales: Arc<[f64]>,
+    /// Build the frame's flow pyramid: the next frame may be tracked by
+    /// optical flow from it (RGB-D, `SlamParams::flow_frames`, the SLAM
+    /// behind its frames).
+    pub flow_pyramid: bool,
 }
 
 /// Pyramid levels optical flow tracks over (level 2 is a quarter of the
@@ -131,6 +135,7 @@ impl Frame {
             params,
             bounds,
             level_scales: extractor.level_scales(),
+            flow_pyramid: params.flow_frames > 0 && !params.is_monocular(),
         };
         Self::with_keypoints(
             input,
@@ -156,14 +161,14 @@ impl Frame {
             camera,
             params,
             bounds,
+            flow_pyramid,
             ..
         } = *context;
         let (width, height) = (input.width, input.height);
         let gray = GrayU8::from_rgb(input.rgb, width, height);
         // Only a frame that flow tracking may follow from needs it (RGB-D:
         // `Tracking::may_follow`).
-        let pyramid = (params.flow_frames > 0 && !params.is_monocular())
-            .then(|| Arc::new(flow_pyramid(&gray)));
+        let pyramid = flow_pyramid.then(|| Arc::new(self::flow_pyramid(&gray)));
         let mask = input
             .mask
             .map(|m| DynamicMask::new(m, width, height, params.mask_dilation_px));

@@ -53,5 +53,5 @@ pub use camera::Camera;
 pub use frame::RgbdInput;
 pub use io::map_file::{MapFile, MapFileError};
 pub use params::{Sensor, SlamParams};
-pub use system::{FrameCounts, FrameResult, KeyframeTiming, System};
+pub use system::{FrameCounts, FrameResult, KeyframeTiming, Pace, System};
 pub use tracking::TrackingState;

@@ -65,6 +65,21 @@ pub struct FrameCounts {
     pub tracked_by_flow: bool,
 }
 
+/// Whether the SLAM keeps up with its frames, which decides if a frame may
+/// be tracked by optical flow (`SlamParams::flow_frames`). Following points
+/// saves about half a frame's time but tracks a little less accurately
+/// under load, so it is for when the time is short.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Pace {
+    /// Behind the camera (real time dropping frames), or a batch run that
+    /// goes as fast as it can: frames may be followed by flow.
+    #[default]
+    Behind,
+    /// Keeping up (lockstep, or real time without a frame dropped): every
+    /// frame is extracted in full, and no flow pyramid is built.
+    KeepingUp,
+}
+
 /// When a frame that the keyframe rule picks becomes a keyframe.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum KeyframeTiming {
@@ -221,6 +236,8 @@ pub struct System {
     /// The last frame's result asked for a keyframe next
     /// (`next_needs_keyframe`): the next frame is extracted in full.
     keyframe_hinted: bool,
+    /// The pace of the frame being tracked.
+    pace: Pace,
 }
 
 /// What the keyframe rule made of a tracked frame.
@@ -291,6 +308,7 @@ impl System {
             motion: MotionCheck::new(MotionCheckParams::default()),
             moving_regions: Vec::new(),
             keyframe_hinted: false,
+            pace: Pace::default(),
         }
     }
 
@@ -418,6 +436,18 @@ impl System {
     /// picks it) inserted as `timing` says. While a keyframe is pending no
     /// other frame becomes one.
     pub fn track_with(&mut self, input: &RgbdInput, timing: KeyframeTiming) -> FrameResult {
+        self.track_paced(input, timing, Pace::Behind)
+    }
+
+    /// [`System::track_with`] at a `pace`: only a frame [`Pace::Behind`]
+    /// may be tracked by optical flow.
+    pub fn track_paced(
+        &mut self,
+        input: &RgbdInput,
+        timing: KeyframeTiming,
+        pace: Pace,
+    ) -> FrameResult {
+        self.pace = pace;
         let t0 = std::time::Instant::now();
         self.mapping_ms = 0.0;
         if !input.is_well_formed() {
@@ -432,7 +462,7 @@ impl System {
             // The resumed motion is stale: find the frame in the map instead.
             self.tracking.start_lost();
         }
-        let follow = !self.keyframe_hinted && self.tracking.may_follow(input.timestamp);
+        let follow = self.may_follow(input.timestamp);
         let (mut frame, mut raw, mut followed) = self.features(input, follow);
         let mut extract_ms = to_ms(t0);
         let t1 = std::time::Instant::now();

@@ -17,7 +17,7 @@ use shared_types::{
 use slam_backend::bridge_link::BridgeLink;
 use slam_backend::tracker::{TrackInput, Tracker};
 use slam_core::io::ply::write_ply;
-use slam_core::KeyframeTiming;
+use slam_core::{KeyframeTiming, Pace};
 
 use crate::held::{from_segmenter, take_frame, take_masks, Arrival, Ports, State};
 use crate::Outputs;
@@ -161,7 +161,13 @@ pub(crate) fn track_next_ready(
     let index = tracking::next_frame(mode, &ready);
     let Some(index) = index else { return Ok(None) };
     let timing = keyframe_timing(st, index, mode.is_realtime());
-    let (track, waiting) = make_track(st, index, tracker, timing)?;
+    let pace = if st.flow_pace.behind(mode) {
+        Pace::Behind
+    } else {
+        Pace::KeepingUp
+    };
+    let (track, waiting) = make_track(st, index, tracker, (timing, pace))?;
+    st.flow_pace.tracked(track.seq);
     // Everything up to this frame is consumed.
     let seq = track.seq;
     match waiting {
@@ -222,7 +228,7 @@ pub(crate) fn make_track(
     st: &State,
     index: usize,
     tracker: &mut dyn Tracker,
-    keyframe: KeyframeTiming,
+    (keyframe, pace): (KeyframeTiming, Pace),
 ) -> Result<(Track, WaitingKeyframe)> {
     let held = &st.frames[index];
     let header = held.sample.user_header();
@@ -263,6 +269,7 @@ pub(crate) fn make_track(
         frame: &frame,
         masks: masks_view.as_ref(),
         keyframe,
+        pace,
     });
     stamps.track_done_ns = now_ns();
     let track = Track {

@@ -40,6 +40,9 @@ pub(crate) struct State {
     /// Real time: the newest frame on which the propagator saw something
     /// move that it does not follow ([`mask_flags::SEGMENT_WANTED`]).
     pub(crate) last_moved: Option<u64>,
+    /// Real time: whether the pipeline is behind the camera (frames may
+    /// then be tracked by optical flow).
+    pub(crate) flow_pace: scheduling::tracking::FlowPace,
 }
 
 impl State {

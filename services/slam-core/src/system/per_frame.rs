@@ -54,6 +54,13 @@ impl System {
         &self.moving_regions
     }
 
+    /// Whether the frame at `timestamp` may be tracked by optical flow: the
+    /// SLAM is behind ([`Pace::Behind`]), the last result did not ask for a
+    /// keyframe, and [`Tracking::may_follow`].
+    pub(super) fn may_follow(&self, timestamp: f64) -> bool {
+        self.pace == Pace::Behind && !self.keyframe_hinted && self.tracking.may_follow(timestamp)
+    }
+
     /// The frame's features: the last tracked frame's inliers followed by
     /// optical flow where `follow` ([`Tracking::may_follow`]) and there are
     /// any, else ORB extraction; with a rolling shutter, keypoints moved to
@@ -72,6 +79,9 @@ impl System {
             params: &self.params,
             bounds,
             level_scales: self.extractor.level_scales(),
+            flow_pyramid: self.params.flow_frames > 0
+                && !self.params.is_monocular()
+                && self.pace == Pace::Behind,
         };
         let motion = self.tracking.shutter_motion(None);
         let (mut raw, mut followed) = (None, None);

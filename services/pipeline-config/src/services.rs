@@ -264,11 +264,11 @@ pub struct SlamConfig {
     /// (movers no class list names; `features_moving` in frames.csv; on by
     /// default).
     pub motion_check: bool,
-    /// RGB-D, real time: while the SLAM is behind its frames (it dropped
-    /// one), frames between keyframes are tracked by following the last
-    /// frame's points with optical flow, up to this many in a row, instead
-    /// of ORB extraction (default 3; 0: every frame extracted; lockstep
-    /// always extracts).
+    /// RGB-D, real time: while the pipeline is behind the camera (over 10 %
+    /// of the recent frames untracked), frames between keyframes are
+    /// tracked by following the last frame's points with optical flow, up
+    /// to this many in a row, instead of ORB extraction (default 3; 0: every
+    /// frame extracted; lockstep always extracts).
     pub flow_frames: u32,
     /// `rgbd` (colour and depth) or `monocular` (colour only: depth
     /// ignored; the map's scale is its own, evaluated with a Sim(3)

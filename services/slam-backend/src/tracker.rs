@@ -16,8 +16,9 @@ pub struct TrackInput<'a> {
     pub masks: Option<&'a MasksView<'a>>,
     /// When the frame becomes a keyframe if the tracker's rule picks it.
     pub keyframe: KeyframeTiming,
-    /// Whether the SLAM is behind its frames ([`scheduling::tracking::behind`]):
-    /// only then may the frame be tracked by optical flow.
+    /// Whether the pipeline is behind the camera
+    /// ([`scheduling::tracking::FlowPace`]): only then may the frame be
+    /// tracked by optical flow.
     pub pace: Pace,
 }
 

@@ -75,8 +75,8 @@ pub enum Pace {
     /// goes as fast as it can: frames may be followed by flow.
     #[default]
     Behind,
-    /// Keeping up (lockstep, or real time without a frame dropped): every
-    /// frame is extracted in full, and no flow pyramid is built.
+    /// Keeping up (lockstep, or real time losing few frames): every frame
+    /// is extracted in full, and no flow pyramid is built.
     KeepingUp,
 }
 

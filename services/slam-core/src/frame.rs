@@ -135,7 +135,7 @@ impl Frame {
             params,
             bounds,
             level_scales: extractor.level_scales(),
-            flow_pyramid: params.flow_frames > 0 && !params.is_monocular(),
+            flow_pyramid: params.flow_on(),
         };
         Self::with_keypoints(
             input,

@@ -139,6 +139,12 @@ impl SlamParams {
     pub fn is_monocular(&self) -> bool {
         self.sensor == Sensor::Monocular
     }
+
+    /// Frames may be tracked by optical flow between extractions:
+    /// `flow_frames` on, RGB-D (a followed point needs its depth's guess).
+    pub fn flow_on(&self) -> bool {
+        self.flow_frames > 0 && !self.is_monocular()
+    }
 }
 
 impl Default for SlamParams {

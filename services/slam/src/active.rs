@@ -166,7 +166,7 @@ pub(crate) fn track_next_ready(
     } else {
         Pace::KeepingUp
     };
-    let (track, waiting) = make_track(st, index, tracker, (timing, pace))?;
+    let (track, waiting) = make_track(st, index, tracker, timing, pace)?;
     st.flow_pace.tracked(track.seq);
     // Everything up to this frame is consumed.
     let seq = track.seq;
@@ -228,7 +228,8 @@ pub(crate) fn make_track(
     st: &State,
     index: usize,
     tracker: &mut dyn Tracker,
-    (keyframe, pace): (KeyframeTiming, Pace),
+    keyframe: KeyframeTiming,
+    pace: Pace,
 ) -> Result<(Track, WaitingKeyframe)> {
     let held = &st.frames[index];
     let header = held.sample.user_header();

@@ -79,9 +79,7 @@ impl System {
             params: &self.params,
             bounds,
             level_scales: self.extractor.level_scales(),
-            flow_pyramid: self.params.flow_frames > 0
-                && !self.params.is_monocular()
-                && self.pace == Pace::Behind,
+            flow_pyramid: self.params.flow_on() && self.pace == Pace::Behind,
         };
         let motion = self.tracking.shutter_motion(None);
         let (mut raw, mut followed) = (None, None);

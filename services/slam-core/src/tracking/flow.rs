@@ -87,8 +87,7 @@ impl Tracking {
     /// no keyframe due (the rule must see the frame's own keypoints).
     pub(crate) fn may_follow(&self, timestamp: f64) -> bool {
         let limit = self.params.flow_frames;
-        limit > 0
-            && !self.params.is_monocular()
+        self.params.flow_on()
             && !self.lost
             && !self.keyframe_due()
             && self.last_pose.is_some()

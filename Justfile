@@ -37,7 +37,7 @@ setup:
         if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c 'import onnx' 2>/dev/null; then
             echo "installing onnx 1.19.1 (Python) into $venv (once)"
             python3 -m venv "$venv"
-            "$venv/bin/pip" install --quiet --disable-pip-version-check onnx==1.19.1 numpy==2.4.6 protobuf==7.36.2
+            "$venv/bin/pip" install --quiet --disable-pip-version-check --no-compile onnx==1.19.1 numpy==2.4.6 protobuf==7.36.2
         fi
         mkdir -p "$models"
         for size in 480 640; do
@@ -70,7 +70,9 @@ evo:
     if [ ! -x "$venv/bin/evo_ape" ]; then
         echo "installing evo 1.38.1 into $venv (once)"
         python3 -m venv "$venv"
-        "$venv/bin/pip" install --quiet --disable-pip-version-check evo==1.38.1
+        # --no-compile: Python compiles the modules it imports on first use;
+        # compiling every module at install took 12 of evo's 20 s.
+        "$venv/bin/pip" install --quiet --disable-pip-version-check --no-compile evo==1.38.1
     fi
     # evo makes its settings folder (~/.evo) on first use; two tests starting
     # it at once on a fresh machine race for the mkdir (FileExistsError).
@@ -84,7 +86,7 @@ pyiceoryx2:
     if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c 'import iceoryx2, PIL' 2>/dev/null; then
         echo "installing iceoryx2 0.10.0 and Pillow 13.0.0 (Python) into $venv (once)"
         python3 -m venv "$venv"
-        "$venv/bin/pip" install --quiet --disable-pip-version-check iceoryx2==0.10.0 pillow==13.0.0
+        "$venv/bin/pip" install --quiet --disable-pip-version-check --no-compile iceoryx2==0.10.0 pillow==13.0.0
     fi
 
 # ROS 2 clients we did not write (PyPI, pinned) in the repo's ignored .cache, for the ROS 2 bridge's tests: eclipse-zenoh (a Zenoh router and subscriber), rosbags (CDR and RIHS01 from its Jazzy type store), zenoh-ros2-sdk (a ROS 2 node on rmw_zenoh's conventions), Pillow (the camera player reads the PNGs).
@@ -95,7 +97,7 @@ ros2py:
     if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c 'import zenoh, rosbags, zenoh_ros2_sdk, PIL' 2>/dev/null; then
         echo "installing eclipse-zenoh 1.10.2, rosbags 0.11.9, zenoh-ros2-sdk 0.1.8 and Pillow 13.0.0 (Python) into $venv (once)"
         python3 -m venv "$venv"
-        "$venv/bin/pip" install --quiet --disable-pip-version-check eclipse-zenoh==1.10.2 rosbags==0.11.9 zenoh-ros2-sdk==0.1.8 pillow==13.0.0
+        "$venv/bin/pip" install --quiet --disable-pip-version-check --no-compile eclipse-zenoh==1.10.2 rosbags==0.11.9 zenoh-ros2-sdk==0.1.8 pillow==13.0.0
     fi
 
 # Test images that registry packages ship (not committed: their licences are not ours), into .cache/fixtures.

@@ -5,11 +5,12 @@
 //! along the epipolar line (triangulation). Fusion's search, which merges
 //! as it goes, is in [`crate::local_mapping::fusion`].
 
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Isometry3, Vector3};
 
 use crate::camera::Camera;
 use crate::features::orb::{hamming, Descriptor, MATCH_MAX_DISTANCE};
 use crate::frame::Frame;
+use crate::geometry::PoseMatrix;
 use crate::map::{KeyFrame, Map, SpareKeypoint};
 use crate::place_recognition::{FeatureVector, Vocabulary};
 
@@ -113,21 +114,21 @@ pub fn match_by_projection(
     search: &ProjectionSearch,
 ) -> Vec<Option<usize>> {
     let mut best: Vec<Option<(usize, u32)>> = vec![None; frame.kps.len()];
-    let mut near = Vec::new();
+    let pose = PoseMatrix::of(&search.pose);
     for &p in candidates {
-        let pc = search.pose * Point3::from(map.points[p].position);
+        let pc = pose.apply(&map.points[p].position);
         if pc.z < search.min_depth_m {
             continue;
         }
-        let (u, v) = camera.project(&pc.coords);
+        let (u, v) = camera.project(&pc);
         let (x0, x1, y0, y1) = frame.bounds;
         if !(x0..x1).contains(&u) || !(y0..y1).contains(&v) {
             continue;
         }
         // Coarse-level keypoints are located less precisely: the window
         // grows with their scale (up to 2x here).
-        frame.grid.near(u, v, 2.0 * search.radius, &mut near);
-        if near.is_empty() {
+        let near = || frame.grid.cells_near(u, v, 2.0 * search.radius).flatten();
+        if near().next().is_none() {
             continue;
         }
         if search.count_visible {
@@ -135,7 +136,7 @@ pub fn match_by_projection(
         }
         let mut cand: Option<(usize, u32)> = None;
         let mut second = u32::MAX;
-        for &k in &near {
+        for &k in near() {
             let (ku, kv) = frame.un[k];
             let r = search.radius * frame.scale(k).min(2.0);
             if (ku - u).powi(2) + (kv - v).powi(2) > r * r {

@@ -6,6 +6,7 @@
 use nalgebra::{Isometry3, Matrix6, Translation3, UnitQuaternion, Vector3, Vector6};
 
 use crate::camera::Camera;
+use crate::geometry::PoseMatrix;
 
 /// One map point seen in the frame.
 #[derive(Debug, Clone, Copy)]
@@ -32,16 +33,28 @@ pub(crate) fn stereo_residual(
     cam: &Camera,
     pose: &Isometry3<f64>,
     world: &Vector3<f64>,
+    measured: (f64, f64, Option<f64>),
+) -> Option<(Vector3<f64>, Vector3<f64>)> {
+    residual_in_camera(
+        cam,
+        (pose * nalgebra::Point3::from(*world)).coords,
+        measured,
+    )
+}
+
+/// [`stereo_residual`] of a point already in the camera frame.
+fn residual_in_camera(
+    cam: &Camera,
+    pc: Vector3<f64>,
     (mu, mv, mur): (f64, f64, Option<f64>),
 ) -> Option<(Vector3<f64>, Vector3<f64>)> {
-    let pc = pose * nalgebra::Point3::from(*world);
     if pc.z <= 1e-3 {
         return None;
     }
-    let (u, v) = cam.project(&pc.coords);
+    let (u, v) = cam.project(&pc);
     let ur = u - cam.bf / pc.z;
     let r = Vector3::new(mu - u, mv - v, mur.map_or(0.0, |m| m - ur));
-    Some((r, pc.coords))
+    Some((r, pc))
 }
 
 /// Information-weighted squared error; `ur` counts only when measured.
@@ -85,10 +98,10 @@ pub(crate) fn pose_row(d: &Vector3<f64>, p: &Vector3<f64>) -> Vector6<f64> {
 
 fn residual(
     cam: &Camera,
-    pose: &Isometry3<f64>,
+    pose: &PoseMatrix,
     o: &Observation,
 ) -> Option<(Vector3<f64>, Vector3<f64>)> {
-    stereo_residual(cam, pose, &o.world, (o.u, o.v, o.ur))
+    residual_in_camera(cam, pose.apply(&o.world), (o.u, o.v, o.ur))
 }
 
 fn chi2(r: &Vector3<f64>, o: &Observation) -> f64 {
@@ -122,9 +135,10 @@ pub fn optimize_pose(
             if round < 3 { 10 } else { 5 },
             round < 2,
         );
+        let matrix = PoseMatrix::of(&pose);
         for (i, o) in obs.iter().enumerate() {
             let th = chi2_threshold(o.ur.is_some());
-            inlier[i] = residual(cam, &pose, o).is_some_and(|(r, _)| chi2(&r, o) <= th);
+            inlier[i] = residual(cam, &matrix, o).is_some_and(|(r, _)| chi2(&r, o) <= th);
         }
         if inlier.iter().filter(|&&b| b).count() < 3 {
             break;
@@ -142,10 +156,13 @@ fn refine(
     robust: bool,
 ) -> Isometry3<f64> {
     let cost = |pose: &Isometry3<f64>| -> f64 {
+        let matrix = PoseMatrix::of(pose);
         obs.iter()
             .zip(use_)
             .filter(|(_, &u)| u)
-            .filter_map(|(o, _)| residual(cam, pose, o).map(|(r, _)| huber(chi2(&r, o), o, robust)))
+            .filter_map(|(o, _)| {
+                residual(cam, &matrix, o).map(|(r, _)| huber(chi2(&r, o), o, robust))
+            })
             .sum()
     };
     let mut pose = *start;
@@ -154,8 +171,9 @@ fn refine(
     for _ in 0..iterations {
         let mut h = Matrix6::<f64>::zeros();
         let mut g = Vector6::<f64>::zeros();
+        let matrix = PoseMatrix::of(&pose);
         for (o, _) in obs.iter().zip(use_).filter(|(_, &u)| u) {
-            let Some((r, p)) = residual(cam, &pose, o) else {
+            let Some((r, p)) = residual(cam, &matrix, o) else {
                 continue;
             };
             let w = weight(&r, o, robust);
@@ -166,10 +184,12 @@ fn refine(
                 .chain(o.ur.map(|_| (pose_row(&dur, &p), r.z)).iter())
             {
                 // Residual is measured - predicted: the Jacobian of the residual is -j.
-                h += w * j * j.transpose();
-                g += w * j * *e;
+                // Lower triangle only (the upper is filled once below).
+                h.syger(w, j, j, 1.0);
+                g.axpy(w * e, j, 1.0);
             }
         }
+        h.fill_upper_triangle_with_lower_triangle();
         let step = damped_step(&h, &g, &mut lambda, &mut current, |delta| {
             let candidate = renormalized(&(perturbation(delta.as_slice()) * pose));
             (cost(&candidate), candidate)
@@ -197,7 +217,9 @@ fn perturbation(delta: &[f64]) -> Isometry3<f64> {
 /// One Levenberg-Marquardt step on the normal equations `h delta = g`:
 /// the damping `lambda` is raised until `apply(delta)` gives a lower cost
 /// than `current` (at most six tries), then lowered. Returns the improved
-/// state and whether it moved measurably, None when no try improved.
+/// state and whether it moved measurably (a step over 1e-6: a micro-radian
+/// or a micrometre; smaller steps change no pixel, and stopping at them
+/// saves a quarter of the iterations), None when no try improved.
 fn damped_step<const N: usize, T>(
     h: &nalgebra::SMatrix<f64, N, N>,
     g: &nalgebra::SVector<f64, N>,
@@ -222,7 +244,7 @@ fn damped_step<const N: usize, T>(
         if c < *current {
             *current = c;
             *lambda = (*lambda * 0.3).max(1e-7);
-            return Some((candidate, delta.norm() > 1e-9));
+            return Some((candidate, delta.norm() > 1e-6));
         }
         *lambda *= 10.0;
     }
@@ -294,12 +316,12 @@ fn seen_from_row(p: &Vector3<f64>, twist: &Twist, dt: f64) -> (Vector3<f64>, Vec
 /// turned part; None behind the camera.
 fn row_residual(
     cam: &Camera,
-    pose: &Isometry3<f64>,
+    pose: &PoseMatrix,
     twist: &Twist,
     dt: f64,
     o: &Observation,
 ) -> Option<(Vector3<f64>, [Vector3<f64>; 3])> {
-    let mid = (pose * nalgebra::Point3::from(o.world)).coords;
+    let mid = pose.apply(&o.world);
     let (q, turned) = seen_from_row(&mid, twist, dt);
     if q.z <= 1e-3 {
         return None;
@@ -336,10 +358,11 @@ pub fn optimize_pose_and_twist(
             if round < 3 { 10 } else { 5 },
             round < 2,
         );
+        let matrix = PoseMatrix::of(&pose);
         for (i, (o, &dt)) in obs.iter().zip(dts).enumerate() {
             let th = chi2_threshold(o.ur.is_some());
             inlier[i] =
-                row_residual(cam, &pose, &twist, dt, o).is_some_and(|(r, _)| chi2(&r, o) <= th);
+                row_residual(cam, &matrix, &twist, dt, o).is_some_and(|(r, _)| chi2(&r, o) <= th);
         }
         if inlier.iter().filter(|&&b| b).count() < 3 {
             break;
@@ -363,12 +386,13 @@ fn refine_with_twist(
     robust: bool,
 ) -> (Isometry3<f64>, Twist) {
     let cost = |pose: &Isometry3<f64>, twist: &Twist| -> f64 {
+        let pose = PoseMatrix::of(pose);
         obs.iter()
             .zip(dts)
             .zip(use_)
             .filter(|(_, &u)| u)
             .filter_map(|((o, &dt), _)| {
-                row_residual(cam, pose, twist, dt, o).map(|(r, _)| huber(chi2(&r, o), o, robust))
+                row_residual(cam, &pose, twist, dt, o).map(|(r, _)| huber(chi2(&r, o), o, robust))
             })
             .sum::<f64>()
             + prior.cost(twist)
@@ -380,8 +404,9 @@ fn refine_with_twist(
     for _ in 0..iterations {
         let mut h = Matrix12::zeros();
         let mut g = Vector12::zeros();
+        let matrix = PoseMatrix::of(&pose);
         for ((o, &dt), _) in obs.iter().zip(dts).zip(use_).filter(|(_, &u)| u) {
-            let Some((r, [mid, q, turned])) = row_residual(cam, &pose, &twist, dt, o) else {
+            let Some((r, [mid, q, turned])) = row_residual(cam, &matrix, &twist, dt, o) else {
                 continue;
             };
             let w = weight(&r, o, robust);

@@ -102,6 +102,35 @@ pub struct ProjectionSearch {
     pub count_visible: bool,
 }
 
+/// A frame's keypoints in its grid's cell order (position, how far the
+/// search reaches for them, descriptor): the candidates of a point are then
+/// one contiguous run per row of cells rather than an index per candidate
+/// into the frame's arrays (fewer cache misses over a few thousand points).
+struct CellOrdered {
+    /// Keypoint index in the frame.
+    index: Vec<usize>,
+    un: Vec<(f64, f64)>,
+    /// The keypoint's scale, at most 2: coarse-level keypoints are located
+    /// less precisely, so the search radius grows with it (up to 2x).
+    reach: Vec<f64>,
+    descs: Vec<Descriptor>,
+    /// Where each grid cell starts in the order (`Grid::cell_order`).
+    starts: Vec<usize>,
+}
+
+impl CellOrdered {
+    fn new(frame: &Frame) -> Self {
+        let (index, starts) = frame.grid.cell_order();
+        Self {
+            un: index.iter().map(|&k| frame.un[k]).collect(),
+            reach: index.iter().map(|&k| frame.scale(k).min(2.0)).collect(),
+            descs: index.iter().map(|&k| frame.descs[k]).collect(),
+            index,
+            starts,
+        }
+    }
+}
+
 /// For each keypoint of `frame`, the best of the map points `candidates`
 /// projecting within the search radius with a descriptor distance below
 /// the threshold and clearly below the second-best keypoint's
@@ -115,6 +144,7 @@ pub fn match_by_projection(
 ) -> Vec<Option<usize>> {
     let mut best: Vec<Option<(usize, u32)>> = vec![None; frame.kps.len()];
     let pose = PoseMatrix::of(&search.pose);
+    let ordered = CellOrdered::new(frame);
     for &p in candidates {
         let pc = pose.apply(&map.points[p].position);
         if pc.z < search.min_depth_m {
@@ -125,29 +155,33 @@ pub fn match_by_projection(
         if !(x0..x1).contains(&u) || !(y0..y1).contains(&v) {
             continue;
         }
-        // Coarse-level keypoints are located less precisely: the window
-        // grows with their scale (up to 2x here).
-        let near = || frame.grid.cells_near(u, v, 2.0 * search.radius).flatten();
-        if near().next().is_none() {
+        // The window of the farthest reach (2x the radius).
+        let mut runs = frame
+            .grid
+            .rows_near(&ordered.starts, u, v, 2.0 * search.radius)
+            .filter(|run| !run.is_empty())
+            .peekable();
+        if runs.peek().is_none() {
             continue;
         }
         if search.count_visible {
             map.points[p].visible += 1;
         }
+        let descriptor = &map.points[p].descriptor;
         let mut cand: Option<(usize, u32)> = None;
         let mut second = u32::MAX;
-        for &k in near() {
-            let (ku, kv) = frame.un[k];
-            let r = search.radius * frame.scale(k).min(2.0);
+        for i in runs.flatten() {
+            let (ku, kv) = ordered.un[i];
+            let r = search.radius * ordered.reach[i];
             if (ku - u).powi(2) + (kv - v).powi(2) > r * r {
                 continue;
             }
-            let d = hamming(&map.points[p].descriptor, &frame.descs[k]);
+            let d = hamming(descriptor, &ordered.descs[i]);
             if cand.is_none_or(|c| d < c.1) {
                 if let Some(c) = cand {
                     second = second.min(c.1);
                 }
-                cand = Some((k, d));
+                cand = Some((ordered.index[i], d));
             } else {
                 second = second.min(d);
             }

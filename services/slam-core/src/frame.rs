@@ -255,7 +255,11 @@ impl Frame {
 
     /// Keypoint `k`'s scale (sigma of its pyramid level).
     pub fn scale(&self, k: usize) -> f64 {
-        let level = self.kps[k].level;
+        self.level_scale(self.kps[k].level)
+    }
+
+    /// The scale (sigma) of pyramid level `level`.
+    pub fn level_scale(&self, level: u8) -> f64 {
         match self.level_scales.get(level as usize) {
             Some(&scale) => scale,
             // A level the parameters do not name (another extractor's).

@@ -102,28 +102,27 @@ pub struct ProjectionSearch {
     pub count_visible: bool,
 }
 
-/// A frame's keypoints in its grid's cell order (position, how far the
-/// search reaches for them, descriptor): the candidates of a point are then
-/// one contiguous run per row of cells rather than an index per candidate
-/// into the frame's arrays (fewer cache misses over a few thousand points).
-struct CellOrdered {
+/// A frame's keypoints copied in its grid's cell order (position, level,
+/// descriptor): the candidates of a search are then one contiguous run per
+/// row of cells rather than an index per candidate into the frame's arrays
+/// (fewer cache misses over a few thousand points). Tracking's search by
+/// projection and the motion check's search in older frames read it.
+pub(crate) struct ByCell {
     /// Keypoint index in the frame.
-    index: Vec<usize>,
-    un: Vec<(f64, f64)>,
-    /// The keypoint's scale, at most 2: coarse-level keypoints are located
-    /// less precisely, so the search radius grows with it (up to 2x).
-    reach: Vec<f64>,
-    descs: Vec<Descriptor>,
+    pub index: Vec<usize>,
+    pub un: Vec<(f64, f64)>,
+    pub levels: Vec<u8>,
+    pub descs: Vec<Descriptor>,
     /// Where each grid cell starts in the order (`Grid::cell_order`).
-    starts: Vec<usize>,
+    pub starts: Vec<usize>,
 }
 
-impl CellOrdered {
-    fn new(frame: &Frame) -> Self {
+impl ByCell {
+    pub(crate) fn new(frame: &Frame) -> Self {
         let (index, starts) = frame.grid.cell_order();
         Self {
             un: index.iter().map(|&k| frame.un[k]).collect(),
-            reach: index.iter().map(|&k| frame.scale(k).min(2.0)).collect(),
+            levels: index.iter().map(|&k| frame.kps[k].level).collect(),
             descs: index.iter().map(|&k| frame.descs[k]).collect(),
             index,
             starts,
@@ -144,7 +143,7 @@ pub fn match_by_projection(
 ) -> Vec<Option<usize>> {
     let mut best: Vec<Option<(usize, u32)>> = vec![None; frame.kps.len()];
     let pose = PoseMatrix::of(&search.pose);
-    let ordered = CellOrdered::new(frame);
+    let ordered = ByCell::new(frame);
     for &p in candidates {
         let pc = pose.apply(&map.points[p].position);
         if pc.z < search.min_depth_m {
@@ -172,7 +171,9 @@ pub fn match_by_projection(
         let mut second = u32::MAX;
         for i in runs.flatten() {
             let (ku, kv) = ordered.un[i];
-            let r = search.radius * ordered.reach[i];
+            // Coarse-level keypoints are located less precisely: the radius
+            // grows with their scale (up to 2x).
+            let r = search.radius * frame.level_scale(ordered.levels[i]).min(2.0);
             if (ku - u).powi(2) + (kv - v).powi(2) > r * r {
                 continue;
             }

@@ -31,8 +31,9 @@ use nalgebra::{Isometry3, Vector2};
 
 use crate::camera::Camera;
 use crate::features::grid::Grid;
-use crate::features::orb::{hamming, Descriptor};
+use crate::features::orb::hamming;
 use crate::frame::Frame;
+use crate::matcher::ByCell;
 
 mod depth;
 use depth::{cell_centres, dense_regions, lookup_window, Around, CellCentres, NearestDepth};
@@ -139,15 +140,12 @@ impl MovingRegion {
     }
 }
 
-/// What later frames need of a frame: its keypoints' positions and depths
-/// and, for the search, its grid and its keypoints in the grid's cell order
-/// (not the whole frame: its descriptors are in `by_cell`, and the rest is
-/// not used).
+/// What later frames need of a frame: its keypoints' depths and, for the
+/// search, its grid and its keypoints in the grid's cell order (positions,
+/// levels, descriptors; not the whole frame: the rest is not used).
 struct PastFrame {
     timestamp: f64,
-    /// Undistorted position and depth per keypoint (the frame's `un` and
-    /// `depth`).
-    un: Vec<(f64, f64)>,
+    /// Depth per keypoint (the frame's `depth`).
     depth_at: Vec<Option<f64>>,
     grid: Grid,
     by_cell: ByCell,
@@ -155,30 +153,6 @@ struct PastFrame {
     depth: NearestDepth,
     /// How fast the camera turned then (rad/s; 0 when not known).
     turn_rate: f64,
-}
-
-/// A frame's keypoint levels and descriptors copied in its grid's cell
-/// order: the candidates of a search are then a few contiguous runs (one
-/// per row of cells) rather than an index per candidate into the frame.
-struct ByCell {
-    /// Keypoint index in the frame.
-    index: Vec<usize>,
-    levels: Vec<u8>,
-    descs: Vec<Descriptor>,
-    /// Where each grid cell starts in the order (`Grid::cell_order`).
-    starts: Vec<usize>,
-}
-
-impl ByCell {
-    fn new(frame: &Frame) -> Self {
-        let (index, starts) = frame.grid.cell_order();
-        Self {
-            levels: index.iter().map(|&k| frame.kps[k].level).collect(),
-            descs: index.iter().map(|&k| frame.descs[k]).collect(),
-            index,
-            starts,
-        }
-    }
 }
 
 /// An image size and the ideal pixel and ray of each of its depth cells'
@@ -374,7 +348,6 @@ impl MotionCheck {
         self.history.push_back(PastFrame {
             timestamp,
             by_cell: ByCell::new(frame),
-            un: frame.un.clone(),
             depth_at: frame.depth.clone(),
             grid: frame.grid.clone(),
             pose_cw: *pose_cw,
@@ -476,9 +449,10 @@ fn keypoint_evidence(
                 }
             }
         }
-        let Some(j) = best_i.map(|i| cells.index[i]) else {
+        let Some(i) = best_i else {
             continue;
         };
+        let j = cells.index[i];
         if best > p.max_hamming || (second != u32::MAX && best as f64 > p.ratio * second as f64) {
             continue;
         }
@@ -487,7 +461,7 @@ fn keypoint_evidence(
         };
         matched_at.push(Vector2::new(u, v));
         found[k] = true;
-        let (ju, jv) = past.un[j];
+        let (ju, jv) = cells.un[i];
         let shift = Vector2::new(ju - pu, jv - pv);
         let world_now = now_wc * nalgebra::Point3::from(here);
         let world_then = past_wc * nalgebra::Point3::from(camera.unproject(ju, jv, zj));

@@ -371,6 +371,41 @@ pub fn optimize_pose_and_twist(
     (pose, twist, inlier)
 }
 
+/// The robust (Huber) cost of a joint estimate over every observation,
+/// each seen from its own row's pose, plus the twist's prior: what
+/// [`optimize_pose_and_twist`] lowers, comparable between two readout
+/// hypotheses of the same observations.
+pub fn pose_and_twist_cost(
+    cam: &Camera,
+    (pose, twist): (&Isometry3<f64>, &Twist),
+    prior: &TwistPrior,
+    (obs, dts): (&[Observation], &[f64]),
+) -> f64 {
+    joint_cost(cam, (pose, twist), prior, (obs, dts), None, true)
+}
+
+/// The joint estimate's cost over the observations `use_` keeps (all
+/// where None).
+fn joint_cost(
+    cam: &Camera,
+    (pose, twist): (&Isometry3<f64>, &Twist),
+    prior: &TwistPrior,
+    (obs, dts): (&[Observation], &[f64]),
+    use_: Option<&[bool]>,
+    robust: bool,
+) -> f64 {
+    let pose = PoseMatrix::of(pose);
+    obs.iter()
+        .zip(dts)
+        .enumerate()
+        .filter(|(i, _)| use_.is_none_or(|u| u[*i]))
+        .filter_map(|(_, (o, &dt))| {
+            row_residual(cam, &pose, twist, dt, o).map(|(r, _)| huber(chi2(&r, o), o, robust))
+        })
+        .sum::<f64>()
+        + prior.cost(twist)
+}
+
 type Matrix12 = nalgebra::SMatrix<f64, 12, 12>;
 type Vector12 = nalgebra::SVector<f64, 12>;
 
@@ -386,16 +421,7 @@ fn refine_with_twist(
     robust: bool,
 ) -> (Isometry3<f64>, Twist) {
     let cost = |pose: &Isometry3<f64>, twist: &Twist| -> f64 {
-        let pose = PoseMatrix::of(pose);
-        obs.iter()
-            .zip(dts)
-            .zip(use_)
-            .filter(|(_, &u)| u)
-            .filter_map(|((o, &dt), _)| {
-                row_residual(cam, &pose, twist, dt, o).map(|(r, _)| huber(chi2(&r, o), o, robust))
-            })
-            .sum::<f64>()
-            + prior.cost(twist)
+        joint_cost(cam, (pose, twist), prior, (obs, dts), Some(use_), robust)
     };
     let information = prior.information();
     let (mut pose, mut twist) = (*start, *start_twist);

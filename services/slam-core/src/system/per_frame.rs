@@ -201,7 +201,7 @@ impl System {
     /// frame before was lost). slam-bench on every 3rd shared frame: ATE
     /// 0.0203 -> 0.0142 m; every frame and every 2nd unchanged.
     pub(super) fn refine_for_shutter(
-        &self,
+        &mut self,
         frame: &mut Frame,
         raw: Option<&RawKeypoints>,
         tracked: &mut Tracked,

@@ -142,6 +142,8 @@ pub struct Tracking {
     /// The last tracked frame's inliers and pyramid, where frames between
     /// keyframes are tracked by optical flow ([`flow`]).
     flow: Option<flow::FlowSource>,
+    /// Which way the rows are read out (kept through a reset: the camera's).
+    readout: rolling_shutter::ReadoutDirection,
 }
 
 impl Tracking {
@@ -165,13 +167,16 @@ impl Tracking {
             last_image: None,
             shortest_interval: None,
             flow: None,
+            readout: rolling_shutter::ReadoutDirection::default(),
         }
     }
 
     /// Nothing tracked yet: the next frame initialises (or, in a loaded
     /// map, relocalises).
     pub fn reset(&mut self) {
+        let readout = self.readout;
         *self = Self::new(self.camera, self.params, self.vocabulary.clone());
+        self.readout = readout;
     }
 
     /// Starts lost in an existing map: the next frames relocalise.

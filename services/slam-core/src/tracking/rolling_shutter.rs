@@ -11,8 +11,8 @@ use crate::frame::Frame;
 use crate::map::Map;
 use crate::matcher::matched_pairs;
 use crate::optimizer::pose::{
-    is_finite_pose, optimize_pose, optimize_pose_and_twist, pose_at_row, renormalized, Twist,
-    TwistPrior,
+    is_finite_pose, optimize_pose, optimize_pose_and_twist, pose_and_twist_cost, pose_at_row,
+    renormalized, Observation, Twist, TwistPrior,
 };
 
 impl Tracking {
@@ -103,7 +103,7 @@ impl Tracking {
     /// apply (no motion model: the frame before was lost) or the
     /// optimisation fails.
     pub(crate) fn refine_for_shutter(
-        &self,
+        &mut self,
         map: &Map,
         frame: &mut Frame,
         raw: &(Vec<(f64, f64)>, Vec<Option<f64>>),
@@ -136,8 +136,7 @@ impl Tracking {
                 .map(|&(k, _)| self.row_delay(frame.kps[k].y, height))
                 .collect();
             let observations = self.observations(map, frame, &ids);
-            let (pose, twist, inlier) =
-                optimize_pose_and_twist(&self.camera, pose_cw, &prior, &observations, &dts);
+            let (pose, twist, inlier) = self.estimate_readout(pose_cw, &prior, &observations, &dts);
             let twist = if twist.iter().all(|x| x.is_finite()) {
                 twist
             } else {
@@ -156,10 +155,48 @@ impl Tracking {
         (n >= self.params.min_inliers && is_finite_pose(&pose)).then_some(pose)
     }
 
+    /// The pose and the readout's motion together (with depth), the rows
+    /// read out the way the frames have shown so far. In a fast turn the
+    /// estimate's pull away from the motion model's turn is evidence of the
+    /// way ([`ReadoutDirection`]); where it points the other way, that way
+    /// is estimated too, and the lower cost decides. Where the way turns,
+    /// this frame takes the other way's estimate.
+    fn estimate_readout(
+        &mut self,
+        pose_cw: &Isometry3<f64>,
+        prior: &TwistPrior,
+        observations: &[Observation],
+        dts: &[f64],
+    ) -> (Isometry3<f64>, Twist, Vec<bool>) {
+        let camera = &self.camera;
+        let estimate = optimize_pose_and_twist(camera, pose_cw, prior, observations, dts);
+        let turn = prior.twist.fixed_rows::<3>(0).into_owned();
+        if turn.norm() < READOUT_EVIDENCE_TURN {
+            return estimate;
+        }
+        let pull = (estimate.1.fixed_rows::<3>(0) - turn).dot(&turn) / turn.norm_squared();
+        if !self.readout.suspects(pull) {
+            return estimate;
+        }
+        let flipped: Vec<f64> = dts.iter().map(|dt| -dt).collect();
+        let other = optimize_pose_and_twist(camera, pose_cw, prior, observations, &flipped);
+        let cost = |(pose, twist, _): &(Isometry3<f64>, Twist, Vec<bool>), dts: &[f64]| {
+            pose_and_twist_cost(camera, (pose, twist), prior, (observations, dts))
+        };
+        if self
+            .readout
+            .settle(cost(&other, &flipped) < cost(&estimate, dts))
+        {
+            other
+        } else {
+            estimate
+        }
+    }
+
     /// Seconds from the middle row's exposure to row `y`'s.
     fn row_delay(&self, y: f32, height: usize) -> f64 {
         let h = height as f64;
-        self.camera.readout_s * (y as f64 - h / 2.0) / h
+        self.readout.sign * self.camera.readout_s * (y as f64 - h / 2.0) / h
     }
 }
 
@@ -184,6 +221,67 @@ fn motion_of(twist: &Twist) -> Isometry3<f64> {
     pose_at_row(&Isometry3::identity(), twist, 1.0)
 }
 
+/// Turn rate (rad/s) of the motion model above which a frame is evidence
+/// of the readout's direction: slower, the two ways hardly differ.
+const READOUT_EVIDENCE_TURN: f64 = 0.5;
+/// Weight of the evidence before each new frame's.
+const READOUT_EVIDENCE_DECAY: f64 = 0.8;
+/// Evidence (decayed sum of pulls) below which the other way is estimated
+/// too. On the shared sequence played forwards the sum's lowest is -0.6;
+/// played backwards the first fast frame's pull alone is -2.1, and the
+/// pulls stay at -0.2 to -2 (docs/measurements.md, "Rows read out the
+/// other way").
+const READOUT_SUSPECT: f64 = -1.5;
+
+/// Which way the rows are read out, as the frames show it. The camera's
+/// `readout_s` says top row first; a sensor set to flip its image reads
+/// the image's bottom row first, and so does a recording played backwards
+/// (the motion between frames is reversed, the rows' order is not): there a
+/// correction along the motion model doubles the shutter's error instead of
+/// removing it. The evidence: the joint estimate's turn during the readout,
+/// held near the motion model's by its prior, is pulled towards what the
+/// rows show; read out the other way, the rows show the opposite turn and
+/// the pull is backwards (a negative fraction of the model's turn).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct ReadoutDirection {
+    /// +1: top row first, as configured; -1: bottom row first.
+    sign: f64,
+    /// Decayed sum of the fast frames' pulls.
+    evidence: f64,
+}
+
+impl Default for ReadoutDirection {
+    fn default() -> Self {
+        Self {
+            sign: 1.0,
+            evidence: 0.0,
+        }
+    }
+}
+
+impl ReadoutDirection {
+    /// Adds one fast frame's pull (the estimated turn minus the model's,
+    /// along the model's, as a fraction of it); true when the evidence
+    /// says to try the other way.
+    fn suspects(&mut self, pull: f64) -> bool {
+        self.evidence = READOUT_EVIDENCE_DECAY * self.evidence + pull;
+        self.evidence < READOUT_SUSPECT
+    }
+
+    /// After the other way was tried: turns the direction when it fitted
+    /// better (true), and starts the evidence again either way.
+    fn settle(&mut self, other_fits_better: bool) -> bool {
+        self.evidence = 0.0;
+        if other_fits_better {
+            self.sign = -self.sign;
+            tracing::info!(
+                "rolling shutter: the rows read out {} row first, as the frames show",
+                if self.sign > 0.0 { "top" } else { "bottom" }
+            );
+        }
+        other_fits_better
+    }
+}
 #[cfg(test)]
 mod tests {
     use nalgebra::{Point3, Translation3, UnitQuaternion, Vector3};
@@ -255,5 +353,24 @@ mod tests {
         assert!(t.shutter_motion(None).is_none());
         t.camera.readout_s = 0.02;
         assert!(t.shutter_motion(Some((t_now + 1.0, mid))).is_none());
+    }
+
+    /// The readout's direction turns only on evidence: pulls like the
+    /// shared sequence's played forwards never make it suspect; played
+    /// backwards the first fast frame does, and it turns only where the
+    /// other way fitted better.
+    #[test]
+    fn the_readout_direction_turns_on_evidence_only() {
+        let mut way = ReadoutDirection::default();
+        for pull in [-0.56, -0.55, -0.13, -0.10, 0.04, -0.10, -0.09, 0.3, -0.3] {
+            assert!(!way.suspects(pull), "{way:?}");
+        }
+        assert!(way.suspects(-2.06));
+        assert!(!way.settle(false), "the other way did not fit better");
+        assert_eq!(way.sign, 1.0);
+        assert!(way.suspects(-1.6));
+        assert!(way.settle(true));
+        assert_eq!(way.sign, -1.0);
+        assert!(!way.suspects(-0.5), "the evidence starts again");
     }
 }

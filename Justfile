@@ -251,10 +251,10 @@ bench-loops: build
         ./target/release/dynslam render "$seq" --path circuit --frames 450
     fi
     for features in 1000 250; do
-        for loops in "" --loop-closing; do
-            echo "== circuit, $features features ${loops:-without loop closing}"
+        for loops in --no-loop-closing ""; do
+            echo "== circuit, $features features ${loops:-with loop closing}"
             ./target/release/slam-bench "$seq" --features "$features" $loops \
-                --out "bench-results/circuit_${features}${loops:+_loops}.txt"
+                --out "bench-results/circuit_${features}${loops:+_no_loops}.txt"
         done
     done
     # Monocular: the loop is a similarity (Sim(3)); the orbit looks in
@@ -264,10 +264,10 @@ bench-loops: build
         rm -rf "$orbit"
         ./target/release/dynslam render "$orbit" --path orbit --frames 450
     fi
-    for loops in "" --loop-closing; do
-        echo "== orbit, monocular, 2000 features ${loops:-without loop closing}"
+    for loops in --no-loop-closing ""; do
+        echo "== orbit, monocular, 2000 features ${loops:-with loop closing}"
         ./target/release/slam-bench "$orbit" --monocular --features 2000 $loops \
-            --out "bench-results/orbit_mono${loops:+_loops}.txt"
+            --out "bench-results/orbit_mono${loops:+_no_loops}.txt"
     done
 
 # People in the shared fr1_rpy sequence (3, seed 5) into .cache/synth: hidden by the nearer scene and passing in front of it, walking across and in mixed behaviours.

@@ -197,7 +197,7 @@ fn a_monocular_orbit_closes_its_loop_with_a_similarity() {
     assert!(ates[1] <= 0.7 * ates[0], "{ates:?}");
 }
 
-/// The whole pipeline with `services.slam.loop_closing = true` (mask
+/// The whole pipeline with the default configuration, loop closing on (mask
 /// workers off: nothing moves in the room): the loop closure lands in the
 /// run folder's `loops.csv`, report.md counts it and evaluates the
 /// loop-corrected trajectory the SLAM wrote at stop.
@@ -205,10 +205,7 @@ fn a_monocular_orbit_closes_its_loop_with_a_similarity() {
 fn the_pipeline_records_the_loop_in_loops_csv() {
     let seq = circuit();
     let dir = scratch("loop-pipeline");
-    let config = write_config(
-        &dir,
-        &format!("{NO_MASK_MODELS}[services.slam]\nloop_closing = true\n"),
-    );
+    let config = write_config(&dir, NO_MASK_MODELS);
     let r = run(
         seq,
         &config,

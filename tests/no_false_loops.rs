@@ -4,7 +4,7 @@
 //! without any mask (the people's features then reach the map: a person
 //! seen at two places matches a consistent rigid transform, which the
 //! spread test refuses), and monocular too (a similarity, its inliers
-//! judged by reprojection), every loop `slam-bench --loop-closing` accepts
+//! judged by reprojection), every loop `slam-bench` accepts (loop closing is on by default)
 //! must be a loop on the room: it brings the two keyframes it joins closer
 //! to how the ground truth says they stand (a loop on people joins them by
 //! where a person was, which has nothing to do with the camera's drift).
@@ -24,9 +24,9 @@ use std::process::Command;
 use nalgebra::Isometry3;
 use slam_core::io::trajectory::Trajectory;
 
-/// The loops `slam-bench --loop-closing` closes on `dataset`, as the
+/// The loops `slam-bench` (loop closing on by default) closes on `dataset`, as the
 /// timestamps of the two keyframes each joins, with the summary line.
-/// `slam-bench --loop-closing` on `dataset` writing its trajectory to `out`
+/// `slam-bench` on `dataset` writing its trajectory to `out`
 /// (and the loop-corrected one beside it): the loops' keyframe stamps, the
 /// summary line and, monocular, the Sim(3) scale.
 fn loops_closed(
@@ -36,7 +36,7 @@ fn loops_closed(
     out: &Path,
 ) -> (Vec<(f64, f64)>, String, Option<f64>) {
     let mut cmd = Command::new(bin_dir().join("slam-bench"));
-    cmd.arg(dataset).arg("--loop-closing");
+    cmd.arg(dataset);
     if masks {
         cmd.arg("--masks");
     }

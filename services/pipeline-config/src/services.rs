@@ -258,7 +258,7 @@ pub struct SlamConfig {
     /// keyframe or point (needs `load_map`).
     pub localize_only: bool,
     /// Look for loops after each keyframe and correct the map when one
-    /// closes (`loops.csv` in the run folder; off by default).
+    /// closes (`loops.csv` in the run folder; on by default).
     pub loop_closing: bool,
     /// RGB-D: drop features in image regions that move unlike the camera
     /// (movers no class list names; `features_moving` in frames.csv; on by
@@ -293,7 +293,7 @@ impl Default for SlamConfig {
             load_map: None,
             save_map: None,
             localize_only: false,
-            loop_closing: false,
+            loop_closing: true,
             motion_check: true,
             flow_frames: 3,
             sensor: "rgbd".into(),

@@ -301,7 +301,7 @@ fn files(md: &mut String, run_dir: &Path) -> Result<()> {
     match run_folder::loops_csv::count_rows(&loops) {
         Ok(0) if !loops.exists() => writeln!(
             md,
-            "- no `loops.csv`: no loop closed (loop closing is `services.slam.loop_closing`, off by default)"
+            "- no `loops.csv`: no loop closed (`services.slam.loop_closing`, on by default, looks for them)"
         )?,
         Ok(n) => writeln!(
             md,

@@ -4,7 +4,7 @@
 //! sequence.
 //!
 //! `slam-bench [DATASET] [--masks] [--skip N] [--limit N] [--threads N] [--local-ba N]
-//! [--readout S] [--inline-mapping] [--no-triangulation] [--fusion] [--loop-closing [--no-global-ba]]
+//! [--readout S] [--inline-mapping] [--no-triangulation] [--fusion] [--no-loop-closing] [--no-global-ba]
 //! [--no-motion-check] [--features N] [--match-ratio R] [--monocular] [--extractor own|kornia] [--no-image-turn]
 //! [--keep-every N [--offset K]] [--drop-share P [--seed S]] [--frames-of trajectory.txt] [--verbose]
 //! [--out trajectory.txt]`
@@ -107,10 +107,12 @@ struct Args {
     /// Fuse duplicate points between keyframes (off by default).
     #[arg(long)]
     fusion: bool,
-    /// Look for loops after each keyframe and correct the map (off by
-    /// default); prints loops closed and loop-detection time per keyframe.
+    /// No loop closing (it is on by default, as in the product: it looks for
+    /// loops after each keyframe, corrects the map, prints the loops closed
+    /// and the detection time per keyframe, and writes the loop-corrected
+    /// trajectory beside --out).
     #[arg(long)]
-    loop_closing: bool,
+    no_loop_closing: bool,
     /// RGB-D motion check off (it is on by default, as in the product: it
     /// drops features in regions that move unlike the camera and prints how
     /// many it dropped).
@@ -125,7 +127,7 @@ struct Args {
     /// extracted, the default); prints how many frames were.
     #[arg(long, default_value_t = 0)]
     flow_frames: u32,
-    /// With --loop-closing: no global bundle adjustment after a loop
+    /// No global bundle adjustment after a loop
     /// correction (the essential graph alone).
     #[arg(long)]
     no_global_ba: bool,
@@ -274,7 +276,7 @@ fn main() -> Result<()> {
     params.mapping_thread = !args.inline_mapping;
     params.triangulate = !args.no_triangulation;
     params.fuse_points = args.fusion;
-    params.loop_closing = args.loop_closing;
+    params.loop_closing = !args.no_loop_closing;
     params.motion_check = !args.no_motion_check;
     params.turn_from_images = !args.no_image_turn;
     params.flow_frames = args.flow_frames;
@@ -459,7 +461,7 @@ fn main() -> Result<()> {
             100.0 * moving as f64 / features.max(1) as f64
         );
     }
-    if args.loop_closing {
+    if params.loop_closing {
         let mut detect = system.loop_detection_ms();
         detect.sort_by(f64::total_cmp);
         println!(

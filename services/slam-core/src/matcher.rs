@@ -134,16 +134,17 @@ impl ByCell {
 /// projecting within the search radius with a descriptor distance below
 /// the threshold and clearly below the second-best keypoint's
 /// (`search.ratio`) (each map point used once, the closer descriptor wins).
-pub fn match_by_projection(
+/// `ordered` is `frame`'s keypoints in cell order, built once for the
+/// frame's passes.
+pub(crate) fn match_by_projection(
     map: &mut Map,
-    frame: &Frame,
+    (frame, ordered): (&Frame, &ByCell),
     camera: &Camera,
     candidates: &[usize],
     search: &ProjectionSearch,
 ) -> Vec<Option<usize>> {
     let mut best: Vec<Option<(usize, u32)>> = vec![None; frame.kps.len()];
     let pose = PoseMatrix::of(&search.pose);
-    let ordered = ByCell::new(frame);
     for &p in candidates {
         let pc = pose.apply(&map.points[p].position);
         if pc.z < search.min_depth_m {

@@ -11,6 +11,15 @@ use crate::map::Map;
 use crate::optimizer::local_ba::{bundle_adjust, BaObservation};
 use crate::params::Sensor;
 
+/// Which adjustment: a local one over the newest keyframes (which may be
+/// every keyframe of a young map) or the global one after a loop or a
+/// monocular start; they take different points.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Scope {
+    Local,
+    Global,
+}
+
 impl Map {
     /// Local bundle adjustment after a keyframe insertion: the newest
     /// `local_ba_keyframes` keyframes and every point they see, against all
@@ -25,7 +34,7 @@ impl Map {
         sensor: Sensor,
     ) -> bool {
         let first_local = self.keyframes.len().saturating_sub(keyframes);
-        self.bundle_adjustment_from(camera, first_local, sensor)
+        self.bundle_adjustment_from(camera, first_local, sensor, Scope::Local)
     }
 
     /// Global bundle adjustment (ORB-SLAM2's after a loop correction and
@@ -33,7 +42,7 @@ impl Map {
     /// keyframe held fixed (it defines the world). False when there was
     /// nothing to adjust.
     pub fn global_bundle_adjustment(&mut self, camera: &Camera, sensor: Sensor) -> bool {
-        self.bundle_adjustment_from(camera, 0, sensor)
+        self.bundle_adjustment_from(camera, 0, sensor, Scope::Global)
     }
 
     /// Bundle adjustment of keyframes `first_local..` and their points
@@ -43,6 +52,7 @@ impl Map {
         camera: &Camera,
         first_local: usize,
         sensor: Sensor,
+        scope: Scope,
     ) -> bool {
         let mut point_slot: HashMap<usize, usize> = HashMap::new();
         let mut point_ids: Vec<usize> = Vec::new();
@@ -92,7 +102,7 @@ impl Map {
         // ones its turn is barely held (the rendered orbit, 250 features:
         // keyframes moved 4-42 cm, ATE after a loop 0.0211 -> 0.0817 m;
         // with them 0.0146 m). Monocular points all have only parallax.
-        let parallax_only = first_local == 0 || sensor == Sensor::Monocular;
+        let parallax_only = scope == Scope::Global || sensor == Sensor::Monocular;
         let adjusted: Vec<bool> = seen_by
             .iter()
             .zip(&with_depth)

@@ -22,7 +22,7 @@ use nalgebra::{Isometry3, Point3};
 use crate::camera::Camera;
 use crate::frame::Frame;
 use crate::map::{KeyFrame, Map, MapPoint, SpareKeypoint};
-use crate::matcher::{match_by_projection, matched_pairs, ProjectionSearch};
+use crate::matcher::{match_by_projection, matched_pairs, ByCell, ProjectionSearch};
 use crate::optimizer::pose::{is_finite_pose, optimize_pose, renormalized, Observation};
 use crate::params::SlamParams;
 use crate::place_recognition::Vocabulary;
@@ -354,6 +354,7 @@ impl Tracking {
         let mut pose = *start;
         let mut matched = Vec::new();
         let mut n = 0;
+        let ordered = ByCell::new(frame);
         for (pass, r) in [radius, 6.0].into_iter().enumerate() {
             let search = ProjectionSearch {
                 pose,
@@ -362,7 +363,7 @@ impl Tracking {
                 ratio: self.params.match_ratio,
                 count_visible: pass == 1,
             };
-            matched = match_by_projection(map, frame, &self.camera, local, &search);
+            matched = match_by_projection(map, (frame, &ordered), &self.camera, local, &search);
             let ids = matched_pairs(&matched);
             if ids.len() < self.params.min_inliers {
                 return None;

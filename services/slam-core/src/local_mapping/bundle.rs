@@ -13,7 +13,15 @@ use crate::params::Sensor;
 
 /// Which adjustment: a local one over the newest keyframes (which may be
 /// every keyframe of a young map) or the global one after a loop or a
-/// monocular start; they take different points.
+/// monocular start. They take different points: in a local adjustment
+/// (RGB-D) a point never measured with (close) depth has only parallax to
+/// fix its distance, which between neighbouring keyframes is too little
+/// next to the depth-measured ones: left out. The global one takes it (as
+/// ORB-SLAM2 does), its keyframes far apart: a keyframe looking across a
+/// room has few close points, and without the far ones its turn is barely
+/// held (the rendered orbit, 250 features: keyframes moved 4-42 cm, ATE
+/// after a loop 0.0211 -> 0.0817 m; with them 0.0146 m). Monocular points
+/// all have only parallax, in both.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Scope {
     Local,
@@ -93,15 +101,8 @@ impl Map {
                 obs_at.push((kid, j));
             }
         }
-        // A point seen once constrains no pose. In a local adjustment
-        // (RGB-D) one never measured with (close) depth has only parallax
-        // to fix its distance, which between neighbouring keyframes is too
-        // little next to the depth-measured ones: left out. The global one
-        // takes it (as ORB-SLAM2 does), its keyframes far apart: a keyframe
-        // looking across a room has few close points, and without the far
-        // ones its turn is barely held (the rendered orbit, 250 features:
-        // keyframes moved 4-42 cm, ATE after a loop 0.0211 -> 0.0817 m;
-        // with them 0.0146 m). Monocular points all have only parallax.
+        // A point seen once constrains no pose; one with only parallax
+        // (never measured with close depth) takes part as [`Scope`] says.
         let parallax_only = scope == Scope::Global || sensor == Sensor::Monocular;
         let adjusted: Vec<bool> = seen_by
             .iter()

@@ -410,6 +410,10 @@ pub enum TrackState {
     Relocalised = 3,
     /// The frame was not tracked (bad input); see the run's log.
     Skipped = 4,
+    /// Monocular: the camera turned away from the map on the spot; the
+    /// turn comes from the images, the position is the last one in the map
+    /// (it has a pose, rougher than a tracked one's).
+    Turning = 5,
 }
 
 impl TrackState {
@@ -421,6 +425,7 @@ impl TrackState {
             2 => Some(Self::Lost),
             3 => Some(Self::Relocalised),
             4 => Some(Self::Skipped),
+            5 => Some(Self::Turning),
             _ => None,
         }
     }
@@ -432,11 +437,12 @@ impl TrackState {
             Self::Lost => "lost",
             Self::Relocalised => "relocalised",
             Self::Skipped => "skipped",
+            Self::Turning => "turning",
         }
     }
     /// True when the frame has a valid pose.
     pub fn is_tracked(self) -> bool {
-        matches!(self, Self::Ok | Self::Relocalised)
+        matches!(self, Self::Ok | Self::Relocalised | Self::Turning)
     }
 }
 

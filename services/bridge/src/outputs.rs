@@ -330,7 +330,8 @@ impl Outputs {
             _ => ([0.0; 3], [0.0; 3], UNKNOWN_VARIANCE),
         };
         self.last_tracked = Some((p.timestamp, map_t_base));
-        let variance = if state == TrackState::Relocalised {
+        // A turning frame's position is held, not measured.
+        let variance = if matches!(state, TrackState::Relocalised | TrackState::Turning) {
             RELOCALISED_VARIANCE
         } else {
             TRACKED_VARIANCE

@@ -218,7 +218,7 @@ impl FrameRow {
 
     /// True when the row has a valid pose.
     pub fn is_tracked(&self) -> bool {
-        matches!(self.state.as_str(), "ok" | "relocalised")
+        matches!(self.state.as_str(), "ok" | "relocalised" | "turning")
     }
 }
 

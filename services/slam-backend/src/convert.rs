@@ -49,6 +49,7 @@ pub fn track_state(s: TrackingState) -> TrackState {
         TrackingState::Relocalised => TrackState::Relocalised,
         TrackingState::Lost => TrackState::Lost,
         TrackingState::Skipped => TrackState::Skipped,
+        TrackingState::Turning => TrackState::Turning,
     }
 }
 

@@ -486,7 +486,7 @@ impl System {
         self.refine_for_shutter(&mut frame, raw.as_ref(), &mut tracked, input.timestamp);
         // A frame tracked by flow has only the points of the last frame,
         // which was checked.
-        let checked = tracked.state.is_tracked() && !initialising && !restarted && !by_flow;
+        let checked = tracked.state.is_in_map() && !initialising && !restarted && !by_flow;
         let (moving, motion_ms) = self.drop_moving(&mut frame, &mut tracked, (input, checked));
         let weakened = self.weakened(&tracked);
         let timing = match (by_flow, weakened) {
@@ -500,7 +500,7 @@ impl System {
         let started = (initialising || restarted) && tracked.state == TrackingState::Ok;
         let decision = self.decide_keyframe(&tracked, &frame, input.timestamp, started, timing);
         let keyframe_inserted = decision == Decision::Inserted;
-        if tracked.state.is_tracked() {
+        if tracked.state.is_in_map() {
             self.tracking
                 .remember_flow(&frame, &tracked.matched, by_flow);
         }
@@ -528,7 +528,7 @@ impl System {
         // tracking weakened or was lost (after this frame's own work with
         // the map: inserting hands the map to local mapping).
         let waiting_keyframe_inserted = self.pending_keyframe.is_some()
-            && (weakened || !tracked.state.is_tracked())
+            && (weakened || !tracked.state.is_in_map())
             && self.complete_keyframe(None);
         let keyframe_pending = decision == Decision::Pending;
         let (state, pose_cw, inliers) = (tracked.state, tracked.pose_cw, tracked.inliers);

@@ -28,6 +28,7 @@ impl System {
             return Decision::Inserted;
         }
         let wanted = !self.localize_only
+            && tracked.state.is_in_map()
             && self.pending_keyframe.is_none()
             && self.tracking.need_keyframe(tracked, frame, &self.map);
         if wanted && timing == KeyframeTiming::Now {
@@ -55,7 +56,7 @@ impl System {
             .as_ref()
             .map_or(self.tracking.reference_inliers(), |p| p.inliers);
         let weak =
-            tracked.state.is_tracked() && (tracked.inliers as f64) < WEAKENED * reference as f64;
+            tracked.state.is_in_map() && (tracked.inliers as f64) < WEAKENED * reference as f64;
         let weakened = weak && self.weak_before;
         self.weak_before = weak;
         weakened

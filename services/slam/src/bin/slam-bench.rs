@@ -322,6 +322,7 @@ fn main() -> Result<()> {
     };
     let mut tracked = 0;
     let mut relocalised = 0;
+    let mut turning = 0;
     let (mut moving, mut features, mut by_flow) = (0u64, 0u64, 0usize);
     let mut progress = Progress::new("slam", frames.len() as u64);
     for (i, f) in frames.iter().enumerate() {
@@ -374,6 +375,7 @@ fn main() -> Result<()> {
             tracked += 1;
         }
         relocalised += (r.state == slam_core::TrackingState::Relocalised) as usize;
+        turning += (r.state == slam_core::TrackingState::Turning) as usize;
         // Tracked frames only (as the pipeline's trajectory.txt): an
         // untracked frame's pose is a guess.
         if r.state.is_tracked() && i < pass_len {
@@ -449,6 +451,11 @@ fn main() -> Result<()> {
         "relocalisations (by bag of words): {relocalised}; young maps lost and started again: {}",
         system.map_restarts()
     );
+    if params.is_monocular() {
+        println!(
+            "turning (monocular, the turn from the images, the position held): {turning} frames"
+        );
+    }
     if params.flow_frames > 0 {
         println!(
             "flow tracking: {by_flow} of {} frames tracked without extraction",

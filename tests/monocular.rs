@@ -184,3 +184,45 @@ fn the_pipeline_runs_monocular_on_a_tum_folder_and_on_an_image_folder() {
     assert!(tracked >= 30, "{tracked} of {}", rows.len());
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// The pipeline on the shared sequence, monocular: fr1_rpy turns away
+/// from the view its map starts from and back; the frames out of the map's
+/// sight come through the processes as `turning` (their turn from the
+/// images, the position held), are in trajectory.txt, and the camera is
+/// back in the map without a loss.
+#[test]
+fn a_monocular_run_records_the_frames_that_turned_away_from_the_map() {
+    let dir = scratch("monocular-turns");
+    let mono = format!("{NO_MASK_MODELS}[services.slam]\nsensor = \"monocular\"\n");
+    let config = write_config(&dir, &mono);
+    let id = format!("turns{}", std::process::id());
+    let r = run(
+        &shared_tum(),
+        &config,
+        &dir.join("runs"),
+        &id,
+        &["--limit", "80"],
+    );
+    assert!(r.success(), "{}", r.stderr());
+    let rows = read_rows(&r.run_dir);
+    let states: Vec<&str> = rows.iter().map(|r| r["state"].as_str()).collect();
+    let start = states
+        .iter()
+        .position(|&s| s != "not_initialised")
+        .expect("the map started");
+    let turning = states.iter().filter(|&&s| s == "turning").count();
+    assert!(turning >= 10, "{turning} turning: {states:?}");
+    assert!(
+        states[start..].iter().all(|&s| s == "ok" || s == "turning"),
+        "{states:?}"
+    );
+    assert_eq!(states.last(), Some(&"ok"), "{states:?}");
+    let trajectory = Trajectory::load_tum(&r.run_dir.join("trajectory.txt")).unwrap();
+    assert_eq!(trajectory.len(), states.len() - start, "{states:?}");
+    let report = std::fs::read_to_string(r.run_dir.join("report.md")).unwrap();
+    assert!(
+        report.contains(&format!("{turning} turning: the turn from the images")),
+        "{report}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}

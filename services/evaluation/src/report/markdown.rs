@@ -95,12 +95,18 @@ fn header(md: &mut String, f: &Figures) -> Result<()> {
         c.cy,
         c.readout_s
     )?;
+    let turning = rows.iter().filter(|r| r.state == "turning").count();
     writeln!(
         md,
-        "Frames: {}, tracked {} ({:.1} %); backends: SLAM `{}`{}, segmenter `{}`, propagator `{}`{}\n",
+        "Frames: {}, tracked {} ({:.1} %{}); backends: SLAM `{}`{}, segmenter `{}`, propagator `{}`{}\n",
         rows.len(),
         tracked,
         100.0 * tracked as f64 / rows.len().max(1) as f64,
+        if turning > 0 {
+            format!("; {turning} turning: the turn from the images, the position held")
+        } else {
+            String::new()
+        },
         config.services.slam.backend,
         if monocular { " (monocular: colour only)" } else { "" },
         config.services.segmenter.backend,

@@ -58,7 +58,7 @@ pub struct MaskScores {
 pub struct ReportSummary {
     /// Frames recorded.
     pub frames: usize,
-    /// Frames tracked (ok or relocalised).
+    /// Frames tracked (ok, relocalised or turning).
     pub tracked: usize,
     /// Accuracy against the ground truth, when the input has one.
     pub eval: Option<EvalSummary>,

@@ -333,8 +333,31 @@ impl Tracking {
                 .map(|t| (t, 15.0))
                 .into_iter()
                 .chain([(predicted, 15.0), (last, 30.0)]);
+            // Monocular: the wide search first among the points the last
+            // frame matched, as ORB-SLAM2's TrackWithMotionModel does, then
+            // the local map from that pose; the local map at once where
+            // that fails. Among the whole local map a look-alike near a
+            // prediction that fell short wins, the pose follows it and the
+            // map's scale shrinks frame by frame while the camera turns
+            // (rendered orbit, 1000 features: 199/450 frames tracked, ATE
+            // 0.37 m; 444/450, 0.0175 m this way). With depth every frame's
+            // points are measured: no shrinking, and no change there.
+            let last_frame = self.params.is_monocular()
+                && self.last_matched.len() >= 2 * self.params.min_inliers;
+            let first: &[usize] = if last_frame {
+                &self.last_matched
+            } else {
+                &local
+            };
             for (start, radius) in starts {
-                if let Some(t) = self.track_from(map, frame, &local, &start, radius) {
+                let t = self
+                    .track_from(map, frame, (first, &local), &start, radius)
+                    .or_else(|| {
+                        last_frame
+                            .then(|| self.track_from(map, frame, (&local, &local), &start, radius))
+                            .flatten()
+                    });
+                if let Some(t) = t {
                     return Tracked {
                         state: TrackingState::Ok,
                         ..t
@@ -359,7 +382,7 @@ impl Tracking {
                 everything = map.live_points().map(|(p, _)| p).collect();
             }
             // The RANSAC pose must hold against the whole map.
-            if let Some(t) = self.track_from(map, frame, &everything, &start, 10.0) {
+            if let Some(t) = self.track_from(map, frame, (&everything, &everything), &start, 10.0) {
                 self.relocalised_at = Some(id);
                 return Tracked {
                     state: TrackingState::Relocalised,
@@ -389,14 +412,26 @@ impl Tracking {
         let held = match self.turning_since {
             Some(held) => held,
             None => {
-                let (v, dt) = self.velocity?;
+                // Over the recent frames, not the last interval alone: a
+                // monocular frame's translation jumps (fr1_rpy: 0.71 rad/s
+                // of parallax from one interval where the three frames say
+                // 0.04).
+                let (&(t0, first), &(t1, last_in_map)) =
+                    (self.recent.first()?, self.recent.last()?);
+                let moved = (first.inverse().translation.vector
+                    - last_in_map.inverse().translation.vector)
+                    .norm();
                 let depth = map
                     .live_keyframes()
                     .next_back()
                     .and_then(|(k, _)| map.median_depth(k))?;
                 Turn {
-                    since: self.last_timestamp()?,
-                    parallax_rate: v.translation.vector.norm() / dt / depth,
+                    since: t1,
+                    parallax_rate: if t1 > t0 {
+                        moved / (t1 - t0) / depth
+                    } else {
+                        0.0
+                    },
                 }
             }
         };
@@ -426,12 +461,13 @@ impl Tracking {
     }
 
     /// Two passes of match-by-projection and pose optimisation: wide from
-    /// `start`, then narrow from the first estimate.
+    /// `start` among the `first` points, then narrow among the `local` ones
+    /// from the first estimate.
     fn track_from(
         &self,
         map: &mut Map,
         frame: &Frame,
-        local: &[usize],
+        (first, local): (&[usize], &[usize]),
         start: &Isometry3<f64>,
         radius: f64,
     ) -> Option<Tracked> {
@@ -447,7 +483,9 @@ impl Tracking {
                 ratio: self.params.match_ratio,
                 count_visible: pass == 1,
             };
-            matched = match_by_projection(map, (frame, &ordered), &self.camera, local, &search);
+            let candidates = if pass == 0 { first } else { local };
+            matched =
+                match_by_projection(map, (frame, &ordered), &self.camera, candidates, &search);
             let ids = matched_pairs(&matched);
             if ids.len() < self.params.min_inliers {
                 return None;

@@ -323,6 +323,8 @@ fn main() -> Result<()> {
     let mut tracked = 0;
     let mut relocalised = 0;
     let mut turning = 0;
+    // The first frame with a pose (monocular: the start's second view).
+    let mut started_at: Option<usize> = None;
     let (mut moving, mut features, mut by_flow) = (0u64, 0u64, 0usize);
     let mut progress = Progress::new("slam", frames.len() as u64);
     for (i, f) in frames.iter().enumerate() {
@@ -376,6 +378,9 @@ fn main() -> Result<()> {
         }
         relocalised += (r.state == slam_core::TrackingState::Relocalised) as usize;
         turning += (r.state == slam_core::TrackingState::Turning) as usize;
+        if r.state != slam_core::TrackingState::NotInitialised {
+            started_at.get_or_insert(i);
+        }
         // Tracked frames only (as the pipeline's trajectory.txt): an
         // untracked frame's pose is a guess.
         if r.state.is_tracked() && i < pass_len {
@@ -453,7 +458,8 @@ fn main() -> Result<()> {
     );
     if params.is_monocular() {
         println!(
-            "turning (monocular, the turn from the images, the position held): {turning} frames"
+            "map started at frame {}; turning (the turn from the images, the position held): {turning} frames",
+            started_at.map_or("-".to_string(), |i| i.to_string())
         );
     }
     if params.flow_frames > 0 {

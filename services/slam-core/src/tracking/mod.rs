@@ -342,26 +342,22 @@ impl Tracking {
             // (rendered orbit, 1000 features: 199/450 frames tracked, ATE
             // 0.37 m; 444/450, 0.0175 m this way). With depth every frame's
             // points are measured: no shrinking, and no change there.
+            // Where the wide pass searches, in order of trial.
             let last_frame = self.params.is_monocular()
                 && self.last_matched.len() >= 2 * self.params.min_inliers;
-            let first: &[usize] = if last_frame {
-                &self.last_matched
+            let wide: &[&[usize]] = if last_frame {
+                &[&self.last_matched, &local]
             } else {
-                &local
+                &[&local]
             };
             for (start, radius) in starts {
-                let t = self
-                    .track_from(map, frame, (first, &local), &start, radius)
-                    .or_else(|| {
-                        last_frame
-                            .then(|| self.track_from(map, frame, (&local, &local), &start, radius))
-                            .flatten()
-                    });
-                if let Some(t) = t {
-                    return Tracked {
-                        state: TrackingState::Ok,
-                        ..t
-                    };
+                for &first in wide {
+                    if let Some(t) = self.track_from(map, frame, (first, &local), &start, radius) {
+                        return Tracked {
+                            state: TrackingState::Ok,
+                            ..t
+                        };
+                    }
                 }
             }
         }
